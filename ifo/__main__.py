@@ -1,0 +1,5 @@
+import sys
+
+from ifo.cli import main
+
+sys.exit(main())

@@ -1,0 +1,209 @@
+"""Command line: `python -m ifo {train, experts, demos, bench} ...`.
+
+Bad input (unknown environment or method, impossible values, a malformed file) ends
+with one line `error: ...` on stderr and exit status 2, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from ifo.config import RunConfig
+from ifo.envs import ENV_NAMES, UnknownEnvironment, get_env
+from ifo.methods import METHODS, UnknownMethod
+
+RUNS_DIR = Path("runs")
+
+
+class CliError(Exception):
+    pass
+
+
+def _bool(text: str) -> bool:
+    v = text.strip().lower()
+    if v in ("1", "true", "yes", "on"):
+        return True
+    if v in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--env", required=True, help=f"one of {', '.join(ENV_NAMES)} or a gymnasium id")
+    p.add_argument("--method", required=True, help=f"one of {', '.join(METHODS)}")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--iterations", type=int, help="alpha: number of iterations (default: per env/method)")
+    p.add_argument("--expert-episodes", type=int, help="demonstration episodes used (T_e)")
+    p.add_argument("--pre-size", type=int, help="random transitions in I_pre")
+    p.add_argument("--episodes-per-iteration", type=int, help="|E|: policy runs per iteration")
+    p.add_argument("--eval-episodes", type=int, default=100)
+    p.add_argument("--idm-epochs", type=int, default=2)
+    p.add_argument("--policy-epochs", type=int, default=10)
+    p.add_argument("--batch-size", type=int, default=128)
+    p.add_argument("--lr", type=float)
+    p.add_argument("--attention", choices=["none", "gated", "features"])
+    p.add_argument("--sampling", choices=["none", "abco", "abco-whole", "iupe"])
+    p.add_argument("--explore-labels", type=_bool, metavar="BOOL")
+    p.add_argument("--explore-rollouts", type=_bool, metavar="BOOL")
+    p.add_argument("--eval-explore", type=_bool, default=False, metavar="BOOL",
+                   help="measure AER with actions sampled from the policy's softmax")
+    p.add_argument("--demos", help="your own demonstrations (.npz: obs, rewards, episode_starts[, actions])")
+    p.add_argument("--obs-mode", choices=["image", "vector"], default="image", help="maze observations")
+    p.add_argument("--image-size", type=int, default=32, help="maze image side in pixels")
+    p.add_argument("--deadlock-guard", type=_bool, default=False, metavar="BOOL")
+
+
+def config_from_args(a: argparse.Namespace) -> RunConfig:
+    cfg = RunConfig(
+        env=a.env, method=a.method, seed=a.seed, iterations=a.iterations, expert_episodes=a.expert_episodes,
+        pre_size=a.pre_size, episodes_per_iteration=a.episodes_per_iteration, eval_episodes=a.eval_episodes,
+        idm_epochs=a.idm_epochs, policy_epochs=a.policy_epochs, batch_size=a.batch_size, lr=a.lr,
+        attention=a.attention, sampling=a.sampling, explore_labels=a.explore_labels,
+        explore_rollouts=a.explore_rollouts, eval_explore=a.eval_explore, demos=a.demos,
+        obs_mode=a.obs_mode, image_size=a.image_size, deadlock_guard=a.deadlock_guard)
+    return cfg.resolved()
+
+
+def _fmt(v, spec=".3f") -> str:
+    return "n/a" if v is None else format(v, spec)
+
+
+def cmd_train(a: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from ifo.run import Run
+
+    cfg = config_from_args(a)
+    out = Path(a.out) if a.out else RUNS_DIR / f"{cfg.env}-{cfg.method}-s{cfg.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    start = time.perf_counter()
+    run = Run(cfg)
+    bar = tqdm(total=cfg.iterations, desc=f"{cfg.method} on {cfg.env}", file=sys.stderr, disable=a.quiet)
+    for _ in range(cfg.iterations):
+        rec = run.step()
+        ev = rec["evaluation"]
+        bar.update(1)
+        bar.write(f"iteration {rec['iteration']:>3}  AER {ev['aer']:9.2f}  P {_fmt(ev['performance'])}  "
+                  f"goal {ev['goal_rate']:.2f}  {rec['seconds']['total']:.2f}s", file=sys.stdout)
+        run.save(out)
+    bar.close()
+    ev = run.records[-1]["evaluation"]
+    summary = {"env": cfg.env, "method": cfg.method, "seed": cfg.seed, "iterations": run.iteration,
+               "aer": ev["aer"], "aer_std": ev["aer_std"], "performance": ev["performance"],
+               "goal_rate": ev["goal_rate"], "seconds": round(time.perf_counter() - start, 3), "run_dir": str(out)}
+    if a.json:
+        print(json.dumps(summary))
+    else:
+        print(f"saved to {out}: AER {ev['aer']:.2f} ± {ev['aer_std']:.2f}, P {_fmt(ev['performance'])}")
+    return 0
+
+
+def cmd_demos_check(a: argparse.Namespace) -> int:
+    from ifo.data.demos import load_demonstrations, summarize
+
+    spec = get_env(a.env)
+    env = spec.make(**({"obs_mode": a.obs_mode, "image_size": a.image_size} if spec.is_maze else {}))
+    shape = tuple(env.observation_space.shape)
+    env.close()
+    demos = load_demonstrations(a.file, spec, shape, require_actions=a.require_actions)
+    s = summarize(demos)
+    print(f"ok: {a.file} holds {s['episodes']} episodes, {s['transitions']} transitions for {spec.name}; "
+          f"mean return {s['mean_return']:.2f}; actions {'present' if s['has_actions'] else 'absent (IfO only)'}")
+    return 0
+
+
+def cmd_experts(a: argparse.Namespace) -> int:
+    envs = ENV_NAMES if a.env == "all" else [get_env(a.env).name]
+    if a.action == "train":
+        from ifo.experts.train import train_expert
+
+        for env in envs:
+            if not get_env(env).is_maze:
+                train_expert(env, seed=a.seed, **({"timesteps": a.timesteps} if a.timesteps else {}))
+        return 0
+    if a.action == "evaluate":
+        from ifo.experts.demos import evaluate_expert
+
+        for env in envs:
+            r = evaluate_expert(env, a.episodes)
+            print(json.dumps(r) if a.json else f"{env}: AER {r['aer']:.2f} ± {r['std']:.2f} over {r['episodes']} episodes")
+        return 0
+    if a.action == "demos":
+        from ifo.experts.demos import make_demonstrations
+
+        for env in envs:
+            make_demonstrations(env, a.episodes)
+        return 0
+    if a.action == "references":
+        from ifo.experts.demos import measure_references
+
+        for env in envs:
+            measure_references(env, a.episodes)
+        return 0
+    raise CliError(f"unknown experts action {a.action!r}")
+
+
+def cmd_bench(a: argparse.Namespace) -> int:
+    from ifo.bench import bench_table
+
+    print(bench_table(a.envs.split(","), a.seeds, a.iterations, quick=a.quick))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m ifo", description="IfO Lab: imitation learning from observation")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("train", help="train a method and save the run")
+    _add_run_options(p)
+    p.add_argument("--out", help="run folder (default runs/ENV-METHOD-sSEED-TIME)")
+    p.add_argument("--json", action="store_true", help="end with one JSON line summarising the run")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("experts", help="expert policies, their demonstrations and reference returns")
+    p.add_argument("action", choices=["train", "evaluate", "demos", "references"])
+    p.add_argument("--env", default="all")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--timesteps", type=int)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_experts)
+
+    p = sub.add_parser("demos", help="demonstration files")
+    dsub = p.add_subparsers(dest="demos_command", required=True)
+    c = dsub.add_parser("check", help="validate a demonstrations .npz for an environment")
+    c.add_argument("file")
+    c.add_argument("--env", required=True)
+    c.add_argument("--require-actions", action="store_true", help="also require 'actions' (needed for BC)")
+    c.add_argument("--obs-mode", choices=["image", "vector"], default="image")
+    c.add_argument("--image-size", type=int, default=32)
+    c.set_defaults(func=cmd_demos_check)
+
+    p = sub.add_parser("bench", help="random/expert AER and BC, BCO, BCO(α) Performance as a markdown table")
+    p.add_argument("--envs", default="cartpole,acrobot,mountaincar,lunarlander,maze5")
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
+    p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")
+    p.set_defaults(func=cmd_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from ifo.runtime import limit_threads
+
+    limit_threads()
+    from ifo.data.demos import DemoError
+
+    try:
+        return args.func(args)
+    except (CliError, UnknownEnvironment, UnknownMethod, DemoError, ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,65 @@
+"""Supervised learning shared by the IDM (Eq 5.1) and the policy (Eq 5.2): maximum
+likelihood = cross-entropy on labelled samples, Adam, mini-batches."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+Forward = Callable[..., torch.Tensor]
+
+
+@dataclass
+class FitResult:
+    loss: float
+    accuracy: float
+
+
+def as_tensor(x: np.ndarray) -> torch.Tensor:
+    # images stay uint8 until the encoder (4x less memory); vectors become float32
+    return torch.from_numpy(np.ascontiguousarray(x)) if x.dtype == np.uint8 else torch.as_tensor(x, dtype=torch.float32)
+
+
+def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimizer,
+        inputs: Sequence[np.ndarray], targets: np.ndarray, epochs: int, batch_size: int,
+        generator: torch.Generator, class_weights: np.ndarray | None = None,
+        grad_clip: float | None = None) -> FitResult:
+    """Train `forward(*inputs) -> logits` on integer `targets`; returns the last epoch's mean loss/accuracy."""
+    module.train()
+    xs = [as_tensor(x) for x in inputs]
+    y = torch.as_tensor(targets, dtype=torch.long)
+    weight = None if class_weights is None else torch.as_tensor(class_weights, dtype=torch.float32)
+    n = len(y)
+    loss_sum = correct = 0.0
+    for _ in range(max(1, epochs)):
+        loss_sum = correct = 0.0
+        order = torch.randperm(n, generator=generator)
+        for start in range(0, n, batch_size):
+            idx = order[start:start + batch_size]
+            if len(idx) < 2 and n >= 2:
+                continue  # BatchNorm cannot train on a single sample
+            logits = forward(*(x[idx] for x in xs))
+            loss = F.cross_entropy(logits, y[idx], weight=weight)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if grad_clip is not None:
+                torch.nn.utils.clip_grad_norm_(module.parameters(), grad_clip)
+            optimizer.step()
+            loss_sum += loss.item() * len(idx)
+            correct += float((logits.argmax(-1) == y[idx]).sum())
+    return FitResult(loss_sum / max(n, 1), correct / max(n, 1))
+
+
+@torch.no_grad()
+def predict_proba(forward: Forward, module: torch.nn.Module, inputs: Sequence[np.ndarray],
+                  batch_size: int = 2048) -> np.ndarray:
+    module.eval()
+    n = len(inputs[0])
+    out = []
+    for start in range(0, n, batch_size):
+        logits = forward(*(as_tensor(x[start:start + batch_size]) for x in inputs))
+        out.append(torch.softmax(logits, -1).numpy())
+    return np.concatenate(out) if out else np.zeros((0, 0), dtype=np.float32)

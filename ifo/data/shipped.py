@@ -1,0 +1,47 @@
+"""The demonstrations shipped in assets/demos, made by `python -m ifo experts demos`.
+
+Control tasks: an SB3-layout .npz with next states, plus the true actions in a separate
+`*-actions.npz`. Maze: the layouts and the agent's cells along the shortest paths;
+images (or vector observations) are rendered when loaded, at the size a run asks for.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ifo.data.demos import (DemoError, Demonstrations, ExpertTransitions, load_demonstrations,
+                            shipped_actions_path, shipped_demos_path)
+from ifo.envs import EnvSpec
+
+
+def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_size: int = 32) -> Demonstrations:
+    path = shipped_demos_path(spec)
+    if not path.exists():
+        raise DemoError(f"no shipped demonstrations at {path}; make them with "
+                        f"`python -m ifo experts demos --env {spec.name}`")
+    if not spec.is_maze:
+        env = spec.make()
+        shape = tuple(env.observation_space.shape)
+        env.close()
+        return load_demonstrations(path, spec, shape, actions_path=shipped_actions_path(spec))
+    return load_maze_demonstrations(spec, obs_mode, image_size)
+
+
+def load_maze_demonstrations(spec: EnvSpec, obs_mode: str, image_size: int) -> Demonstrations:
+    from ifo.envs.maze import observation
+
+    with np.load(shipped_demos_path(spec), allow_pickle=False) as data:
+        layouts, episode_layout = data["layouts"], data["episode_layout"]
+        positions, next_positions = data["positions"], data["next_positions"]
+        starts, rewards = data["episode_starts"].astype(bool), data["rewards"]
+    actions_file = shipped_actions_path(spec)
+    actions = None
+    if actions_file.exists():
+        with np.load(actions_file, allow_pickle=False) as data:
+            actions = data["actions"].astype(np.int64)
+    episode = np.cumsum(starts) - 1
+    layout_of = layouts[episode_layout[episode]]
+    states = np.stack([observation(l, p, obs_mode, image_size) for l, p in zip(layout_of, positions)])
+    next_states = np.stack([observation(l, p, obs_mode, image_size) for l, p in zip(layout_of, next_positions)])
+    returns = np.bincount(episode, weights=rewards)
+    return Demonstrations(ExpertTransitions(states, next_states, episode), returns, actions,
+                          source=str(shipped_demos_path(spec)), maze_layouts=layouts[episode_layout])

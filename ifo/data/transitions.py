@@ -1,0 +1,94 @@
+"""Labelled transitions (s_t, a_t, s_{t+1}): I_pre, I_pos and the IDM's training set I_s."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ifo.envs.rollout import EnvPool, run_episodes
+
+
+@dataclass
+class Transitions:
+    states: np.ndarray
+    actions: np.ndarray
+    next_states: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def subset(self, idx: np.ndarray) -> "Transitions":
+        return Transitions(self.states[idx], self.actions[idx], self.next_states[idx])
+
+    @staticmethod
+    def concat(parts: list["Transitions"]) -> "Transitions":
+        parts = [p for p in parts if len(p)] or parts[:1]
+        return Transitions(np.concatenate([p.states for p in parts]),
+                           np.concatenate([p.actions for p in parts]),
+                           np.concatenate([p.next_states for p in parts]))
+
+    def counts(self, n_actions: int) -> np.ndarray:
+        return np.bincount(self.actions, minlength=n_actions)
+
+    def arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        return {f"{prefix}states": self.states, f"{prefix}actions": self.actions,
+                f"{prefix}next_states": self.next_states}
+
+    @staticmethod
+    def from_arrays(data, prefix: str) -> "Transitions":
+        return Transitions(data[f"{prefix}states"], data[f"{prefix}actions"], data[f"{prefix}next_states"])
+
+
+@dataclass
+class PreDemonstrations:
+    """I_pre, split 70/30 (stratified by action) into IDM training and validation parts."""
+
+    train: Transitions
+    validation: Transitions
+
+
+def collect_random_transitions(pool: EnvPool, n_actions: int, size: int, per_action_cap: int,
+                               rng: np.random.Generator, seed_base: int, drop_unchanged: bool = False,
+                               episodes_per_batch: int = 32) -> Transitions:
+    """Random-policy transitions, class-balanced at `per_action_cap` per action.
+
+    `drop_unchanged` removes moves that left the state as it was (the maze's moves into
+    walls): they carry no information about which action was taken.
+    """
+    parts: list[Transitions] = []
+    counts = np.zeros(n_actions, dtype=np.int64)
+    target = min(size // n_actions, per_action_cap)
+    batch = 0
+
+    def act(obs):
+        a = rng.integers(0, n_actions, size=len(obs))
+        return a, a
+
+    while counts.min() < target and batch < 200:
+        seeds = seed_base + batch * episodes_per_batch + np.arange(episodes_per_batch)
+        ro = run_episodes(pool, act, seeds)
+        part = Transitions(ro.states, ro.actions, ro.next_states)
+        if drop_unchanged:
+            moved = (part.states.reshape(len(part), -1) != part.next_states.reshape(len(part), -1)).any(1)
+            part = part.subset(np.flatnonzero(moved))
+        parts.append(part)
+        counts += part.counts(n_actions)
+        batch += 1
+    everything = Transitions.concat(parts)
+    keep = []
+    for a in range(n_actions):
+        idx = np.flatnonzero(everything.actions == a)
+        keep.append(rng.permutation(idx)[:target])
+    return everything.subset(np.sort(np.concatenate(keep)))
+
+
+def stratified_split(t: Transitions, n_actions: int, val_share: float,
+                     rng: np.random.Generator) -> PreDemonstrations:
+    train_idx, val_idx = [], []
+    for a in range(n_actions):
+        idx = rng.permutation(np.flatnonzero(t.actions == a))
+        n_val = int(round(len(idx) * val_share))
+        val_idx.append(idx[:n_val])
+        train_idx.append(idx[n_val:])
+    return PreDemonstrations(t.subset(np.sort(np.concatenate(train_idx))),
+                             t.subset(np.sort(np.concatenate(val_idx))))

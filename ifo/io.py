@@ -1,0 +1,92 @@
+"""Safe reading and writing: atomic replaces, and weights as plain arrays (no pickle)."""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write to a temporary file in the same folder, fsync, then rename over `path`.
+
+    A crash at any moment leaves either the old file or the new one, never half of one.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: str | os.PathLike, obj) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=True))
+
+
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
+
+
+def save_state_dict(path: str | os.PathLike, state: dict[str, torch.Tensor], meta: dict | None = None) -> None:
+    """A torch state dict as a compressed .npz of arrays, plus an optional JSON `__meta__`."""
+    arrays = {k: v.detach().cpu().numpy() for k, v in state.items()}
+    if meta is not None:
+        arrays["__meta__"] = np.array(json.dumps(meta))
+    atomic_write_bytes(path, npz_bytes(arrays))
+
+
+def load_state_dict(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict]:
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["__meta__"])) if "__meta__" in data.files else {}
+        state = {k: torch.from_numpy(data[k].copy()) for k in data.files if k != "__meta__"}
+    return state, meta
+
+
+def module_arrays(prefix: str, module: torch.nn.Module) -> dict[str, np.ndarray]:
+    return {f"{prefix}.{k}": v.detach().cpu().numpy() for k, v in module.state_dict().items()}
+
+
+def load_module_arrays(prefix: str, module: torch.nn.Module, arrays: dict[str, np.ndarray]) -> None:
+    start = prefix + "."
+    state = {k[len(start):]: torch.from_numpy(np.array(v)) for k, v in arrays.items() if k.startswith(start)}
+    module.load_state_dict(state)
+
+
+def optimizer_arrays(prefix: str, optimizer: torch.optim.Optimizer) -> tuple[dict[str, np.ndarray], dict]:
+    """An optimizer's tensors as arrays, and the rest (param groups) as JSON-able data."""
+    sd = optimizer.state_dict()
+    arrays = {}
+    for idx, slots in sd["state"].items():
+        for key, value in slots.items():
+            arrays[f"{prefix}.{idx}.{key}"] = torch.as_tensor(value).detach().cpu().numpy()
+    return arrays, {"param_groups": sd["param_groups"]}
+
+
+def load_optimizer_arrays(prefix: str, optimizer: torch.optim.Optimizer, arrays: dict[str, np.ndarray],
+                          meta: dict) -> None:
+    state: dict[int, dict] = {}
+    start = prefix + "."
+    for k, v in arrays.items():
+        if k.startswith(start):
+            idx, key = k[len(start):].split(".", 1)
+            state.setdefault(int(idx), {})[key] = torch.from_numpy(np.array(v))
+    optimizer.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
