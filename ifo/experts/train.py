@@ -178,7 +178,7 @@ def _train_once(spec: EnvSpec, hp: dict, seed: int, timesteps: int, log: Callabl
     best: dict[str, Any] = {"score": -np.inf}
     start = time.perf_counter()
 
-    def evaluate_now(steps: int) -> None:
+    def evaluate_now(steps: int, label: str = "") -> None:
         expert = export_policy(model)
         returns = _greedy_episodes(spec, expert.act, selection_seeds)
         score = float(returns.mean())
@@ -186,7 +186,7 @@ def _train_once(spec: EnvSpec, hp: dict, seed: int, timesteps: int, log: Callabl
         if score >= best["score"]:  # ties go to the later (longer trained) checkpoint
             best.update(score=score, steps=steps, policy=copy.deepcopy(model.policy.state_dict()))
             mark = "  * best"
-        log(f"[{spec.name} seed {seed}] {steps:>8d} steps  {time.perf_counter() - start:6.0f}s  "
+        log(f"[{spec.name} seed {seed}] {steps:>8d} steps{label:4s} {time.perf_counter() - start:6.0f}s  "
             f"held-out AER {score:8.2f} ± {returns.std():6.2f}  min {returns.min():8.2f}{mark}")
 
     class PeriodicEval(BaseCallback):
@@ -201,8 +201,8 @@ def _train_once(spec: EnvSpec, hp: dict, seed: int, timesteps: int, log: Callabl
             return True
 
     model.learn(total_timesteps=timesteps, callback=PeriodicEval())
-    if best.get("steps") != model.num_timesteps:
-        evaluate_now(model.num_timesteps)
+    # the model after the last update (a callback evaluation can precede the final update)
+    evaluate_now(model.num_timesteps, " end")
     seconds = time.perf_counter() - start
     model.policy.load_state_dict(best["policy"])
     expert = export_policy(model)

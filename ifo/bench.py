@@ -1,0 +1,67 @@
+"""Benchmark: `python -m ifo bench` trains BC, BCO and BCO(α) per environment over seeds and
+prints a markdown table of random/expert AER, each method's Performance (mean ± sd over
+seeds, last iteration) and BCO(α)'s seconds per iteration.
+
+Speed is measured here (a command that prints figures), never in timed tests.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from ifo.config import RunConfig
+from ifo.envs import get_env
+from ifo.methods import METHODS
+from ifo.run import Run
+
+BASELINE_METHODS = ("bc", "bco", "bco-alpha")
+QUICK = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2, expert_episodes=2)
+
+
+def _mean_sd(values) -> str:
+    values = [v for v in values if v is not None]
+    if not values:
+        return "n/a"
+    return f"{np.mean(values):.3f} ± {np.std(values):.3f}"
+
+
+def run_once(env: str, method: str, seed: int, iterations: int | None, quick: bool, **overrides) -> dict:
+    cfg = RunConfig(env=env, method=method, seed=seed, iterations=iterations, **(QUICK if quick else {}), **overrides)
+    start = time.perf_counter()
+    run = Run(cfg)
+    setup = time.perf_counter() - start
+    run.run()
+    ev = run.records[-1]["evaluation"]
+    per_iteration = [r["seconds"]["total"] for r in run.records]
+    return {"performance": ev["performance"], "aer": ev["aer"], "setup_seconds": setup,
+            "seconds_per_iteration": float(np.mean(per_iteration)), "iterations": len(run.records)}
+
+
+def bench_table(envs: list[str], seeds: int = 3, iterations: int | None = None, quick: bool = False,
+                log=lambda msg: print(msg, file=sys.stderr)) -> str:
+    header = ("| environment | random AER | expert AER | " + " | ".join(f"{METHODS[m].title} P" for m in BASELINE_METHODS)
+              + " | BCO(α) s/iteration | BCO(α) AER |")
+    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    for env in envs:
+        spec = get_env(env)
+        results = {m: [] for m in BASELINE_METHODS}
+        for method in BASELINE_METHODS:
+            for seed in range(seeds):
+                r = run_once(spec.name, method, seed, iterations if method != "bco" else None, quick)
+                results[method].append(r)
+                log(f"{spec.name} {method} seed {seed}: P {r['performance']} AER {r['aer']:.2f} "
+                    f"({r['seconds_per_iteration']:.2f} s/iteration, {r['iterations']} iterations)")
+        alpha = results["bco-alpha"]
+        row = [spec.thesis_name, f"{spec.random_return:.2f}" if spec.random_return is not None else "n/a",
+               f"{spec.expert_return:.2f}" if spec.expert_return is not None else "n/a"]
+        row += [_mean_sd([r["performance"] for r in results[m]]) for m in BASELINE_METHODS]
+        row += [f"{np.mean([r['seconds_per_iteration'] for r in alpha]):.2f}",
+                f"{np.mean([r['aer'] for r in alpha]):.2f} ± {np.std([r['aer'] for r in alpha]):.2f}"]
+        lines.append("| " + " | ".join(row) + " |")
+    lines.append("")
+    lines.append(f"Seeds: {seeds}; iterations: {'per-environment defaults' if iterations is None else iterations}"
+                 f"{' (quick settings)' if quick else ''}; P and AER at the last iteration, 100 evaluation "
+                 "episodes on held-out seeds (maze: held-out layouts).")
+    return "\n".join(lines)

@@ -1,0 +1,59 @@
+"""The command line as a researcher uses it: --json contracts and clear errors."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+FAST = ["--iterations", "2", "--pre-size", "2000", "--episodes-per-iteration", "10", "--eval-episodes", "10",
+        "--policy-epochs", "2", "--expert-episodes", "2"]
+
+
+def run_cli(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "ifo", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_train_json_contract_and_saved_run(tmp_path):
+    out = tmp_path / "run"
+    res = run_cli("train", "--env", "cartpole", "--method", "bco-alpha", "--seed", "1", "--json", "--quiet",
+                  "--out", str(out), *FAST)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert lines[0].startswith("iteration   1")  # per-iteration AER and P
+    summary = json.loads(lines[-1])
+    assert {"env", "method", "seed", "iterations", "aer", "performance", "seconds"} <= set(summary)
+    assert summary["env"] == "cartpole" and summary["method"] == "bco-alpha" and summary["seed"] == 1
+    assert summary["iterations"] == 2 and summary["seconds"] > 0
+    assert (out / "LATEST").exists() and (out / "config.json").exists()
+
+    from ifo.run import Run
+
+    run = Run.load(out)
+    assert run.iteration == 2 and run.records[-1]["evaluation"]["aer"] == pytest.approx(summary["aer"])
+
+
+def test_gymnasium_ids_and_aliases_are_accepted():
+    res = run_cli("train", "--env", "CartPole-v1", "--method", "BCO", "--json", "--quiet", *FAST)
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["method"] == "bco" and summary["iterations"] == 1
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--env", "pong", "--method", "bco"], "unknown environment 'pong'"),
+    (["--env", "cartpole", "--method", "dagger"], "unknown method 'dagger'"),
+    (["--env", "cartpole", "--method", "sail"], "planned but not implemented"),
+    (["--env", "cartpole", "--method", "bco-alpha", "--iterations", "0"], "iterations must be a whole number >= 1"),
+    (["--env", "cartpole", "--method", "bco", "--demos", "/nonexistent/demos.npz"], "no such file"),
+])
+def test_bad_input_gives_one_clear_line_and_exit_2(args, message):
+    res = run_cli("train", *args, "--quiet")
+    assert res.returncode == 2
+    assert message in res.stderr and "Traceback" not in res.stderr
+
+
+def test_experts_evaluate_json_contract():
+    res = run_cli("experts", "evaluate", "--env", "cartpole", "--episodes", "5", "--json")
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert out["env"] == "cartpole" and out["episodes"] == 5 and out["aer"] == 500.0
