@@ -132,6 +132,9 @@ class Run:
         yield
         seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - start
 
+    def _can_skip_cycles(self, sampled_actions: bool) -> bool:
+        return self.spec.deterministic and not sampled_actions
+
     @property
     def iteration(self) -> int:
         return len(self.records)
@@ -201,7 +204,8 @@ class Run:
             with self._phase("rollout", seconds):  # I_pos and v_e
                 seeds = cfg.seed * 10_000_000 + 1_000_000 + i * cfg.episodes_per_iteration + np.arange(
                     cfg.episodes_per_iteration)
-                ro = run_episodes(self.pool, _act_with(self.policy, cfg.explore_rollouts, rng), seeds)
+                ro = run_episodes(self.pool, _act_with(self.policy, cfg.explore_rollouts, rng), seeds,
+                                  skip_cycles=self._can_skip_cycles(cfg.explore_rollouts))
                 self.last_rollouts = ro
             win = float(ro.goals.mean())
             record["rollouts"] = {"returns": ro.returns.tolist(), "lengths": ro.lengths.tolist(),
@@ -223,7 +227,8 @@ class Run:
     def _evaluate(self, explore: bool, rng: np.random.Generator) -> dict:
         cfg = self.config
         seeds = EVAL_SEED_BASE + np.arange(cfg.eval_episodes) if not self.spec.is_maze else np.arange(cfg.eval_episodes)
-        ro = run_episodes(self.eval_pool, _act_with(self.policy, explore, rng), seeds)
+        ro = run_episodes(self.eval_pool, _act_with(self.policy, explore, rng), seeds,
+                          skip_cycles=self._can_skip_cycles(explore) and not cfg.deadlock_guard)
         self.last_evaluation = ro
         returns = ro.returns
         refs = self.references

@@ -349,3 +349,27 @@ def test_spec_makes_the_maze_and_its_goal_test_reads_at_goal():
     assert rollouts.goals.all()
     assert all(e.info["at_goal"] for e in rollouts.episodes)
     assert rollouts.states.shape[1] == 5 * 5 * 5
+
+
+def test_skipping_cycles_gives_exactly_the_returns_of_stepping_to_the_limit():
+    """A deterministic policy that loops: fast-forwarding the cycle changes nothing but the time."""
+    from ifo.envs import get_env
+    from ifo.envs.rollout import EnvPool, run_episodes
+
+    spec = get_env("maze5")
+
+    def east_else_south_else_north(obs):
+        # decode the one-hot cell and open sides from vector observations; loops in dead ends
+        n = 25
+        cell = obs[:, :n].argmax(1)
+        sides = obs[:, n:].reshape(len(obs), n, 4)[np.arange(len(obs)), cell]
+        a = np.where(sides[:, 3] > 0, 3, np.where(sides[:, 1] > 0, 1, 0))
+        return a, a
+
+    pool = EnvPool(spec, split="eval", obs_mode="vector", max_steps=300)
+    full = run_episodes(pool, east_else_south_else_north, range(20))
+    fast = run_episodes(pool, east_else_south_else_north, range(20), skip_cycles=True)
+    np.testing.assert_allclose(fast.returns, full.returns)
+    np.testing.assert_array_equal(fast.lengths, full.lengths)
+    np.testing.assert_array_equal(fast.goals, full.goals)
+    assert (full.lengths == 300).any() and len(fast.actions) < len(full.actions)

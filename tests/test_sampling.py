@@ -32,6 +32,12 @@ def test_bco_alpha_trains_on_every_policy_run():
     assert len(t) == 10 and mix.from_pre == [0, 0, 0] and mix.from_pos == [3, 3, 4]
 
 
+def test_bco_alpha_keeps_a_budget_of_N_transitions_when_runs_are_long():
+    long_runs = make(np.arange(250) % 3, offset=1000)
+    t, mix = build_training_set("none", PRE, long_runs, np.ones(250, bool), 1.0, 3, RNG())
+    assert len(t) == 100 and sum(mix.from_pos) == 100 and (t.states >= 1000).all()
+
+
 def test_abco_draws_p_times_N_from_successful_runs_and_the_rest_from_I_pre():
     # p = 0.05, N = 100: 5 from successful I_pos following P(A|E;I_pos) = (3/6, 3/6, 0)
     # and 95 from I_pre following P(A|I_pre) = (.6, .3, .1) -> 57, 28.5, 9.5

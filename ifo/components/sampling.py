@@ -1,6 +1,8 @@
 """Building the IDM's next training set I_s from I_pre and the policy's runs I_pos.
 
-    none        BCO(alpha) (Torabi et al.): I_s = I_pos, every run.
+    none        BCO(alpha) (Torabi et al.): I_s = I_pos, every run (a uniform subset of at
+                most N = |I_pre| transitions when the runs hold more, as BCO(alpha) spends a
+                fixed budget of post-demonstration interactions per iteration).
     abco        ABCO, Eqs 5.3-5.5: only runs that met the goal (v_e = 1) count. With the
                 win probability p = P(g|E) and N = |I_pre|, draw p*N samples from the
                 successful I_pos following its action distribution P(A|E; I_pos), and
@@ -64,6 +66,8 @@ def build_training_set(mode: str, pre: Transitions, pos: Transitions, pos_succes
     p = float(win_probability)
     n = len(pre)
     if mode == "none":
+        if len(pos) > n:
+            pos = pos.subset(np.sort(rng.choice(len(pos), size=n, replace=False)))
         return pos, Mixture([0] * n_actions, pos.counts(n_actions).tolist())
     successful = pos.subset(np.flatnonzero(pos_success))
     if mode != "abco-whole" and len(successful) == 0:

@@ -61,6 +61,7 @@ class EnvSpec:
     kwargs: dict = field(default_factory=dict)
     is_maze: bool = False
     thesis_name: str = ""
+    deterministic: bool = False  # same state and action always give the same next state
 
     @property
     def n_actions(self) -> int:
@@ -98,7 +99,7 @@ _CONTROL = [
 ]
 _MAZES = [
     EnvSpec(f"maze{n}", f"ifo/Maze{n}x{n}-v0", ("N", "S", "W", "E"), _maze_goal, kwargs={"size": n},
-            is_maze=True, thesis_name=f"Maze {n}x{n}")
+            is_maze=True, deterministic=True, thesis_name=f"Maze {n}x{n}")
     for n in (3, 5, 10)
 ]
 ENVS: dict[str, EnvSpec] = {spec.name: spec for spec in _CONTROL + _MAZES}

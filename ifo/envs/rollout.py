@@ -71,12 +71,31 @@ class EnvPool:
         self._envs.clear()
 
 
+def _step_limit(env) -> int | None:
+    limit = getattr(env.unwrapped, "max_steps", None)
+    return limit if limit is not None else getattr(env.spec, "max_episode_steps", None)
+
+
 def run_episodes(pool: EnvPool, act: ActFn, seeds: Sequence[int], record: bool = True,
-                 render_first: bool = False, render_fn: Callable | None = None) -> Rollouts:
+                 render_first: bool = False, render_fn: Callable | None = None,
+                 skip_cycles: bool = False) -> Rollouts:
+    """Run one episode per seed.
+
+    `skip_cycles`: only for a deterministic policy in a deterministic environment (MAP
+    actions in the maze). Once an observation repeats, the episode would go round the same
+    cycle until the step limit, so its return and length are completed exactly without
+    stepping: a lost maze agent costs a few steps instead of a thousand.
+    """
     seeds = [int(s) for s in seeds]
     n = len(seeds)
     envs = pool.get(n)
+    limits = [_step_limit(env) for env in envs] if skip_cycles else [None] * n
+    seen: list[dict] = [{} for _ in range(n)]
+    step_rewards_of: list[list[float]] = [[] for _ in range(n)]
     obs = np.stack([env.reset(seed=s)[0] for env, s in zip(envs, seeds)])
+    if skip_cycles:
+        for i in range(n):
+            seen[i][obs[i].tobytes()] = 0
     alive = np.ones(n, dtype=bool)
     rets = np.zeros(n)
     lens = np.zeros(n, dtype=np.int64)
@@ -96,6 +115,17 @@ def run_episodes(pool: EnvPool, act: ActFn, seeds: Sequence[int], record: bool =
             rets[i] += r
             lens[i] += 1
             next_obs[i] = o2
+            if limits[i] is not None and not (term or trunc):
+                key = o2.tobytes()
+                history = step_rewards_of[i]
+                history.append(r)
+                if key in seen[i]:  # the rest of the episode repeats this cycle up to the step limit
+                    cycle = history[seen[i][key]:]
+                    full, part = divmod(limits[i] - int(lens[i]), len(cycle))
+                    rets[i] += full * sum(cycle) + sum(cycle[:part])
+                    lens[i] = limits[i]
+                    trunc = True
+                seen[i][key] = len(history)
             if term or trunc:
                 alive[i] = False
                 episodes[i] = Episode(float(rets[i]), int(lens[i]), bool(term), bool(trunc),

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import streamlit as st
 
 from ifo.config import RunConfig
-from ifo.data.demos import shipped_demos_path
 from ifo.envs import ENVS, get_env
 from ifo.methods import METHODS, get_method
 
@@ -24,14 +23,10 @@ def fast_overrides() -> dict:
     return dict(FAST_OVERRIDES) if os.environ.get("IFO_LAB_FAST", "").strip().lower() in ("1", "true", "yes") else {}
 
 
-def has_shipped_demos(env: str) -> bool:
-    return shipped_demos_path(get_env(env)).exists()
-
-
 def env_label(env: str) -> str:
+    # stays the same whatever is on disk: a label that changes would reset the selectbox
     spec = get_env(env)
-    label = spec.thesis_name or spec.name
-    return label if has_shipped_demos(env) else f"{label} (no demonstrations yet)"
+    return spec.thesis_name or spec.name
 
 
 def method_label(method: str) -> str:

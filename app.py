@@ -1,0 +1,43 @@
+"""IfO Lab: the Streamlit entry point. Run with `streamlit run app.py`.
+
+Navigation, the page config and a landing page for a class. Each activity is a page in
+`pages/`; the training itself lives in the `ifo` library, which never imports streamlit.
+Set IFO_LAB_FAST=1 for tiny runs (used by the tests; see `ifo.ui.settings`).
+"""
+import os
+
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # the maze renders with pygame, headless
+
+import streamlit as st  # noqa: E402
+
+from ifo.methods import METHODS, PLANNED  # noqa: E402
+from ifo.runtime import limit_threads  # noqa: E402
+
+limit_threads()
+st.set_page_config(page_title="IfO Lab", page_icon="🧭", layout="wide")
+
+step_page = st.Page("pages/step_through.py", title="Step through a run", icon="👣", url_path="step")
+
+
+def landing() -> None:
+    st.title("IfO Lab")
+    st.subheader("Imitation Learning from Observation, one iteration at a time")
+    methods = ", ".join(m.title for m in METHODS.values())
+    st.markdown(
+        "In **imitation learning from observation** (IfO) an agent learns a task by watching an expert, "
+        "but the demonstrations hold only what the expert *saw* (its states), never which actions it took.\n\n"
+        "The agent first acts at random and learns an **inverse dynamics model** (IDM) that guesses which action "
+        "leads from one state to the next. It uses the IDM to label the expert's state pairs with guessed actions, "
+        "trains its policy to copy those labels, then runs the policy and feeds its own new experience back to "
+        "the IDM: this is the **BCO loop**, and one press of *Step* is one turn of it.\n\n"
+        f"The methods here are {methods}: BC is the reference that is allowed to see the expert's true actions, "
+        "and each of the others adds a component (iterating, attention, goal-aware sampling, exploration) to the "
+        f"same loop; {', '.join(p.upper() for p in PLANNED)} are planned.\n\n"
+        "Open *Step through a run*, choose an environment and a method, and press *Step* to watch the reward "
+        "rise and the IDM's guesses approach the expert's hidden actions."
+    )
+    st.page_link(step_page, label="Step through a run", icon="👣")
+
+
+home = st.Page(landing, title="Welcome", icon="🧭", default=True)
+st.navigation([home, step_page]).run()
