@@ -14,9 +14,10 @@ from ifo.methods import METHODS, PLANNED  # noqa: E402
 from ifo.runtime import limit_threads  # noqa: E402
 
 limit_threads()
-st.set_page_config(page_title="IfO Lab", page_icon="🧭", layout="wide")
+PLANNED_TITLES = {"gaifo": "GAIfO"}
+st.set_page_config(page_title="IfO Lab", page_icon=":material/school:", layout="wide")
 
-step_page = st.Page("pages/step_through.py", title="Step through a run", icon="👣", url_path="step")
+step_page = st.Page("pages/step_through.py", title="Step through a run", icon=":material/skip_next:", url_path="step")
 
 
 def landing() -> None:
@@ -32,12 +33,13 @@ def landing() -> None:
         "the IDM: this is the **BCO loop**, and one press of *Step* is one turn of it.\n\n"
         f"The methods here are {methods}: BC is the reference that is allowed to see the expert's true actions, "
         "and each of the others adds a component (iterating, attention, goal-aware sampling, exploration) to the "
-        f"same loop; {', '.join(p.upper() for p in PLANNED)} are planned.\n\n"
+        f"same loop; {', '.join(PLANNED_TITLES.get(p, p.upper()) for p in PLANNED)} are planned.\n\n"
         "Open *Step through a run*, choose an environment and a method, and press *Step* to watch the reward "
         "rise and the IDM's guesses approach the expert's hidden actions."
     )
-    st.page_link(step_page, label="Step through a run", icon="👣")
+    if st.button("Step through a run", key="open_step", type="primary", icon=":material/skip_next:"):
+        st.switch_page(step_page)
 
 
-home = st.Page(landing, title="Welcome", icon="🧭", default=True)
+home = st.Page(landing, title="Welcome", icon=":material/school:", default=True)
 st.navigation([home, step_page]).run()
