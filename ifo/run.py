@@ -106,7 +106,7 @@ class Run:
 
     # ------------------------------------------------------------------ helpers
     def _obs_shape(self) -> tuple[int, ...]:
-        env = self.pool.get(1)[0]
+        env = self.pool.envs(1)[0]
         return tuple(env.observation_space.shape)
 
     def _references(self) -> dict:

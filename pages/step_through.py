@@ -10,7 +10,7 @@ import streamlit as st
 
 from ifo import figures
 from ifo.runtime import limit_threads
-from ifo.ui.panels import chart, counter, metrics_row
+from ifo.ui.panels import counter, grid, metrics_row
 from ifo.ui.session import RunSlot
 from ifo.ui.settings import run_settings
 
@@ -44,30 +44,30 @@ def live():
         st.info("Press **Step** to train the first iteration.")
         return
     metrics_row(records)
-    left, right = st.columns(2)
-    with left:
-        chart(figures.learning_curve(records, "aer"), "step.aer",
-              "Average episodic reward: the learner's mean score after each iteration, "
-              "with the expert's and a random policy's scores as dashed lines.")
-    with right:
-        chart(figures.learning_curve(records, "performance"), "step.performance",
-              "Performance rescales that score so a random policy is 0 and the expert is 1.")
-    left, right = st.columns(2)
-    with left:
-        if "idm" in records[-1]:
-            chart(figures.idm_predictions(records, names), "step.idm",
-                  "What the IDM says the expert did on each demonstrated transition, next to what it really did: "
-                  "the true actions are hidden from the learner and shown only to you.")
-        else:
-            st.info("BC learns from the expert's true actions, so there is no IDM to show.")
-    with right:
-        chart(figures.accuracy_curves(records), "step.accuracy",
-              "How often the IDM's labels and the policy's choices match the expert's hidden actions.")
+    has_idm = "idm" in records[-1]
+    panels = [
+        (figures.learning_curve(records, "aer"), "step.aer",
+         "Average episodic reward: the learner's mean score after each iteration, "
+         "with the expert's and a random policy's scores as dashed lines."),
+        (figures.learning_curve(records, "performance"), "step.performance",
+         "Performance rescales that score so a random policy is 0 and the expert is 1."),
+    ]
+    if has_idm:
+        panels.append((figures.idm_predictions(records, names), "step.idm",
+                       "What the IDM says the expert did on each demonstrated transition, next to what it really "
+                       "did: the true actions are hidden from the learner and shown only to you."))
+    panels.append((figures.accuracy_curves(records), "step.accuracy",
+                   "How often the IDM's labels and the policy's choices match the expert's hidden actions."))
     if any("rollouts" in r for r in records):
-        left, _ = st.columns(2)
-        with left:
-            chart(figures.win_probability(records), "step.win",
-                  "The share of the policy's own runs in each iteration that reached the goal.")
+        panels.append((figures.win_probability(records), "step.win",
+                       "The share of the policy's own runs in each iteration that reached the goal."))
+    if has_idm:
+        panels.append((figures.idm_predictions_over_time(records, names), "step.idm_over_time",
+                       "The IDM's predicted share of each action, iteration after iteration; "
+                       "dotted lines are the true shares."))
+    grid(panels)
+    if not has_idm:
+        st.info("BC learns from the expert's true actions, so there is no IDM to show.")
 
 
 live()
@@ -79,7 +79,7 @@ with controls:
     step.button("Step", key="step", type="primary", on_click=slot.request_step, disabled=done,
                 help="Train one iteration.", width="stretch")
     n_col.number_input("N", min_value=1, max_value=1000, value=5, step=1, key="run_n",
-                           help="How many iterations Run N trains, one after another.")
+                       help="How many iterations Run N trains, one after another.")
     if slot.playing:
         run_n.button("Pause", key="pause", on_click=slot.pause, width="stretch",
                      help="Stop after the iteration that is training now.")

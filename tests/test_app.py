@@ -47,6 +47,9 @@ def test_landing_page_explains_ifo_and_links_to_the_step_page():
     text = " ".join(m.value for m in at.markdown)
     assert "BCO loop" in text and "inverse dynamics model" in text and "IUPE" in text
     assert not at.error
+    at.button(key="open_step").click().run()
+    assert not at.exception
+    assert counter(at) == "Iteration 0 of 10"
 
 
 def test_step_page_loads_ready_to_step():
@@ -65,7 +68,8 @@ def test_step_step_reset():
     assert len(records(at)) == 1
     assert counter(at) == "Iteration 1 of 10"
     charts = at.get("plotly_chart")
-    assert len(charts) == 5  # AER, Performance, IDM predictions, accuracy, win probability
+    # AER, Performance, IDM predictions, accuracy, win probability, IDM predictions through time
+    assert len(charts) == 6
     assert {m.label for m in at.metric} == {"AER", "Performance P", "Goal rate", "Seconds per iteration"}
 
     at.button(key="step").click().run()

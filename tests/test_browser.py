@@ -96,8 +96,8 @@ def test_step_through_cartpole_three_times(app_url, page):
     expect(counter).to_have_text("Iteration 0 of 10")
     page.wait_for_selector(IDLE)
     sidebar = page.locator("[data-testid='stSidebar']")
-    expect(sidebar.get_by_text("CartPole")).to_be_visible()  # the defaults: CartPole and BCO(α)
-    expect(sidebar.get_by_text("BCO(α)")).to_be_visible()
+    expect(sidebar.get_by_role("combobox", name="Environment")).to_have_value("CartPole")  # the defaults
+    expect(sidebar.get_by_role("combobox", name="Method")).to_have_value("BCO(α)")
     expect(page.locator(CHART)).to_have_count(0)
 
     aer_chart = page.locator(CHART).filter(has_text="Average episodic reward")
@@ -105,8 +105,8 @@ def test_step_through_cartpole_three_times(app_url, page):
         page.get_by_role("button", name="Step", exact=True).click()
         expect(counter).to_have_text(f"Iteration {k} of 10")
         page.wait_for_selector(IDLE)
-        # AER, Performance, IDM predictions, accuracy, win probability
-        expect(page.locator(CHART)).to_have_count(5)
+        # AER, Performance, IDM predictions, accuracy, win probability, IDM predictions through time
+        expect(page.locator(CHART)).to_have_count(6)
         for chart in page.locator(CHART).all():
             expect(chart).to_be_visible()
         # the AER curve has one point per iteration
@@ -115,7 +115,21 @@ def test_step_through_cartpole_three_times(app_url, page):
 
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     page.mouse.move(5, 5)  # no tooltip over the screenshot
+    page.evaluate("document.activeElement && document.activeElement.blur()")
     page.set_viewport_size({"width": 1400, "height": 2600})  # the app scrolls inside its main pane
     page.wait_for_selector(IDLE)
     page.wait_for_timeout(500)  # let plotly relayout to the new size
     page.screenshot(path=str(ARTIFACTS / "step_page.png"), full_page=True)
+
+    # Run N trains the next N iterations, one per rerun of the page's fragment, then stops
+    page.set_viewport_size({"width": 1400, "height": 1000})
+    n_input = page.get_by_role("spinbutton", name="N", exact=True)
+    n_input.fill("2")
+    n_input.press("Enter")
+    page.wait_for_selector(IDLE)
+    page.get_by_role("button", name="Run N", exact=True).click()
+    expect(counter).to_have_text("Iteration 5 of 10")
+    expect(page.get_by_role("button", name="Run N", exact=True)).to_be_visible()  # Pause is gone: it stopped
+    page.wait_for_selector(IDLE)
+    expect(counter).to_have_text("Iteration 5 of 10")
+    expect(aer_chart.locator(".scatterlayer .trace").first.locator("path.point")).to_have_count(5)

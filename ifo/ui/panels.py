@@ -14,6 +14,14 @@ def chart(fig: go.Figure, key: str, caption: str) -> None:
     st.caption(caption)
 
 
+def grid(panels: list[tuple[go.Figure, str, str]], columns: int = 2) -> None:
+    """Panels (figure, key, caption) laid out `columns` to a row."""
+    for start in range(0, len(panels), columns):
+        for col, panel in zip(st.columns(columns), panels[start:start + columns]):
+            with col:
+                chart(*panel)
+
+
 def counter(iteration: int, total: int) -> None:
     st.markdown(f"#### Iteration {iteration} of {total}")
 
