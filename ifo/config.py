@@ -21,10 +21,16 @@ ENV_DEFAULTS: dict[str, dict] = {
     "acrobot": dict(pre_size=15_000, iterations=15, expert_episodes=10, episodes_per_iteration=50, lr=3e-3),
     "mountaincar": dict(pre_size=15_000, iterations=20, expert_episodes=10, episodes_per_iteration=50, lr=3e-3),
     "lunarlander": dict(pre_size=20_000, iterations=20, expert_episodes=20, episodes_per_iteration=50, lr=1e-3),
-    "maze3": dict(pre_size=6_000, iterations=15, expert_episodes=100, episodes_per_iteration=50, lr=1e-3),
-    "maze5": dict(pre_size=8_000, iterations=15, expert_episodes=100, episodes_per_iteration=50, lr=1e-3),
-    "maze10": dict(pre_size=12_000, iterations=20, expert_episodes=100, episodes_per_iteration=50, lr=1e-3),
+    # mazes: images through a CNN cost ~100x a vector MLP, so fewer gradient steps per
+    # iteration, and training runs stop after 4 x cells steps (evaluation keeps 1,000)
+    "maze3": dict(pre_size=4_000, iterations=15, expert_episodes=100, episodes_per_iteration=50, lr=1e-3,
+                  idm_epochs=1, policy_epochs=5, rollout_max_steps=36),
+    "maze5": dict(pre_size=6_000, iterations=15, expert_episodes=100, episodes_per_iteration=50, lr=1e-3,
+                  idm_epochs=1, policy_epochs=5, rollout_max_steps=100),
+    "maze10": dict(pre_size=10_000, iterations=20, expert_episodes=100, episodes_per_iteration=50, lr=1e-3,
+                   idm_epochs=1, policy_epochs=5, rollout_max_steps=400),
 }
+COMMON_DEFAULTS = dict(idm_epochs=2, policy_epochs=10)
 
 
 @dataclass(frozen=True)
@@ -38,8 +44,8 @@ class RunConfig:
     pre_per_action_cap: int = 5_000
     episodes_per_iteration: int | None = None  # |E|
     eval_episodes: int = 100
-    idm_epochs: int = 2
-    policy_epochs: int = 10
+    idm_epochs: int | None = None
+    policy_epochs: int | None = None
     batch_size: int = 128
     lr: float | None = None
     hidden: tuple[int, ...] = (32, 32)
@@ -53,7 +59,9 @@ class RunConfig:
     demos: str | None = None  # a user's .npz demonstrations instead of the shipped ones
     obs_mode: str = "image"  # maze only: "image" or "vector"
     image_size: int = 32  # maze only
+    rollout_max_steps: int | None = None  # maze: step limit of training runs (I_pre, I_pos)
     deadlock_guard: bool = False  # maze evaluation: end on the 4th visit to a cell with return -1
+    attention_probes: bool = True  # maze images: Grad-CAM maps and mean-image distances each iteration
 
     def resolved(self) -> "RunConfig":
         """A copy with every None filled in, after checking every value."""
@@ -67,6 +75,8 @@ class RunConfig:
                 v = method.components[f.name]
             if v is None and f.name in env_defaults:
                 v = env_defaults[f.name]
+            if v is None and f.name in COMMON_DEFAULTS:
+                v = COMMON_DEFAULTS[f.name]
             values[f.name] = v
         values["env"], values["method"] = spec.name, method.name
         values["hidden"] = tuple(int(h) for h in values["hidden"])
@@ -78,7 +88,7 @@ class RunConfig:
 
     def validate(self) -> None:
         positive = ["iterations", "expert_episodes", "pre_size", "episodes_per_iteration", "eval_episodes",
-                    "idm_epochs", "policy_epochs", "batch_size", "pre_per_action_cap", "image_size"]
+                    "idm_epochs", "policy_epochs", "batch_size", "pre_per_action_cap", "image_size", "rollout_max_steps"]
         for name in positive:
             v = getattr(self, name)
             if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 1):

@@ -194,7 +194,7 @@ def phase_seconds(records: Sequence[dict], theme: str = "screen") -> go.Figure:
     if not records:
         return _empty(title, "No iteration yet", theme)
     xs = [r["iteration"] for r in records]
-    phases = [p for p in ("idm", "label", "policy", "rollout", "sampling", "evaluate")
+    phases = [p for p in ("idm", "label", "policy", "attention", "rollout", "sampling", "evaluate")
               if any(p in r["seconds"] for r in records)]
     fig = go.Figure([go.Bar(x=xs, y=[r["seconds"].get(p, 0) for r in records], name=p,
                             marker_color=COLORS[k % len(COLORS)]) for k, p in enumerate(phases)])
@@ -211,3 +211,137 @@ def compare_runs(runs: Sequence[tuple[str, Sequence[dict]]], metric: str = "perf
         fig.add_trace(go.Scatter(x=[r["iteration"] for r in records], y=[r["evaluation"][metric] for r in records],
                                  mode="lines+markers", name=name, line=dict(color=COLORS[k % len(COLORS)])))
     return _layout(fig, title, "iteration", metric, theme)
+
+
+# ----------------------------------------------------------------------------- attention (Sec 5.5.2, 6.4.1)
+def _subplots(rows: int, cols: int, titles: Sequence[str], **kwargs):
+    from plotly.subplots import make_subplots
+
+    return make_subplots(rows=rows, cols=cols, subplot_titles=list(titles), **kwargs)
+
+
+# jet with an alpha ramp: where the map is 0 the frame shows through untouched
+CAM_COLORSCALE = [[0.0, "rgba(0,0,255,0)"], [0.25, "rgba(0,160,255,0.35)"], [0.5, "rgba(0,230,0,0.5)"],
+                  [0.75, "rgba(255,210,0,0.65)"], [1.0, "rgba(230,0,0,0.8)"]]
+
+
+def grad_cam_panel(records: Sequence[dict], iteration: int | None = None, theme: str = "screen",
+                   frames=None, action_names: Sequence[str] | None = None) -> go.Figure:
+    """Fig 6.1: the fixed probe frames (top row) and where the policy looks on each (bottom row).
+
+    The bottom row is Grad-CAM of the policy's chosen action, from
+    `record["attention"]["grad_cam"]`; with `frames` (uint8 (n, H, W, 3), e.g.
+    `ifo.probes.maze_probe_frames`) the heatmap is laid over the frame. Each map is
+    normalised on its own; the hover shows its raw peak to compare iterations.
+    """
+    title = "Where the policy looks (Grad-CAM)"
+    rec = _pick(records, iteration)
+    cam = (rec or {}).get("attention", {}).get("grad_cam") if rec else None
+    if not cam or not cam.get("maps"):
+        return _empty(title, "No Grad-CAM yet: it is drawn for image policies (the maze with image observations)"
+                      if rec else "Press Step to train the first iteration", theme)
+    maps = cam["maps"]
+    n = len(maps)
+    actions = cam.get("actions") or [None] * n
+    probs = cam.get("probabilities") or [None] * n
+    raw = cam.get("raw_max") or [None] * n
+    probes = cam.get("probes") or [{}] * n
+    has_frames = frames is not None and len(frames) >= n
+
+    def action_label(k: int) -> str:
+        a = actions[k]
+        if a is None:
+            return ""
+        name = action_names[a] if action_names is not None and a < len(action_names) else str(a)
+        p = probs[k][a] if probs[k] is not None else None
+        return f"{name} ({p:.0%})" if p is not None else name
+
+    top = [probes[k].get("kind", f"probe {k + 1}") if k < len(probes) else f"probe {k + 1}" for k in range(n)]
+    bottom = [action_label(k) for k in range(n)]
+    rows = 2 if has_frames else 1
+    fig = _subplots(rows, n, (top + bottom) if has_frames else bottom, horizontal_spacing=0.02,
+                    vertical_spacing=0.12)
+    for k, m in enumerate(maps):
+        res_y, res_x = len(m), len(m[0]) if m else 0
+        heat = dict(z=m, zmin=0, zmax=1, colorscale=CAM_COLORSCALE if has_frames else "Jet", showscale=k == n - 1,
+                    colorbar=dict(title="attention", len=0.5 if has_frames else 1, y=0.25 if has_frames else 0.5),
+                    hovertemplate=f"row %{{y}}, col %{{x}}: %{{z:.2f}}<br>raw peak {raw[k]}<extra></extra>"
+                    if raw[k] is not None else None)
+        if has_frames:
+            frame = frames[k]
+            h, w = frame.shape[:2]
+            fig.add_trace(go.Image(z=frame, hoverinfo="skip"), row=1, col=k + 1)
+            fig.add_trace(go.Image(z=frame, hoverinfo="skip"), row=2, col=k + 1)
+            # one map cell covers (h / res_y, w / res_x) pixels; image pixel i is centred at i
+            fig.add_trace(go.Heatmap(**heat, x0=w / (2 * res_x) - 0.5, dx=w / res_x,
+                                     y0=h / (2 * res_y) - 0.5, dy=h / res_y), row=2, col=k + 1)
+        else:
+            fig.add_trace(go.Heatmap(**heat), row=1, col=k + 1)
+            fig.update_yaxes(autorange="reversed", row=1, col=k + 1)  # row 0 of the map is the image's top
+    fig.update_xaxes(visible=False)
+    fig.update_yaxes(visible=False)
+    for k in range(1, rows * n + 1):  # square pixels: each y axis keeps the scale of its own x axis
+        suffix = "" if k == 1 else str(k)
+        fig.layout[f"yaxis{suffix}"].scaleanchor = f"x{suffix}"
+    fig = _layout(fig, f"{title} (iteration {rec['iteration']})", "", "", theme)
+    if theme != "slide":
+        fig.update_layout(height=420 if has_frames else 260)
+    return fig
+
+
+def state_attention(records: Sequence[dict], feature_names: Sequence[str], iteration: int | None = None,
+                    theme: str = "screen") -> go.Figure:
+    """Attention over state variables (attention="features"): the mean weight each variable
+    receives in the policy (inputs s) and in the IDM (inputs [s, s' - s], labelled x, Δx)."""
+    title = "Attention over state variables"
+    rec = _pick(records, iteration)
+    if rec is None:
+        return _empty(title, "Press Step to train the first iteration", theme)
+    names = list(feature_names)
+    panels = []
+    pol = rec.get("policy", {}).get("attention")
+    if pol:
+        labels = names if len(names) == len(pol) else [f"s[{i}]" for i in range(len(pol))]
+        panels.append(("policy π(a|s)", labels, pol))
+    idm = rec.get("idm", {}).get("attention")
+    if idm:
+        if 2 * len(names) == len(idm):
+            labels = names + [f"Δ{n}" for n in names]
+        else:
+            labels = [f"x[{i}]" for i in range(len(idm))]
+        panels.append(("IDM M(a|s,s')", labels, idm))
+    if not panels:
+        return _empty(title, "No attention over state variables: choose attention = features "
+                      "(vector observations)", theme)
+    fig = _subplots(len(panels), 1, [p[0] for p in panels], vertical_spacing=0.25 if len(panels) > 1 else 0.1)
+    for k, (name, labels, att) in enumerate(panels):
+        fig.add_trace(go.Bar(x=labels, y=att, name=name, marker_color=COLORS[k], showlegend=False,
+                             hovertemplate="%{x}: %{y:.3f}<extra></extra>"), row=k + 1, col=1)
+        fig.add_hline(y=1 / len(att), line=dict(color=RANDOM_COLOR, dash="dot"), annotation_text="uniform",
+                      annotation_position="top right", row=k + 1, col=1)
+        fig.update_yaxes(title_text="attention", rangemode="tozero", row=k + 1, col=1)
+    fig = _layout(fig, f"{title} (iteration {rec['iteration']})", "", "", theme)
+    fig.update_yaxes(title_text="attention")
+    return fig
+
+
+def action_distance_curves(records: Sequence[dict], action_names: Sequence[str], theme: str = "screen") -> go.Figure:
+    """Fig 5.3: per action, the L2 distance of the mean image of the policy's runs (I_pos) to the
+    expert's, across iterations; 0 is the expert's mean image, 1 the random policy's (I_pre)."""
+    title = "Distance of each action's mean image to the expert's"
+    recs = [r for r in records if r.get("attention", {}).get("mean_image_distance")]
+    if not recs:
+        return _empty(title, "No image distances yet: they are measured on maze runs that run the policy "
+                      "(ABCO, IUPE, BCO(α))" if records else "Press Step to train the first iteration", theme)
+    xs = [r["iteration"] for r in recs]
+    fig = go.Figure()
+    for a, name in enumerate(action_names):
+        ys = [(r["attention"]["mean_image_distance"]["distance"] + [None] * len(action_names))[a] for r in recs]
+        fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines+markers", name=name, connectgaps=False,
+                                 line=dict(color=COLORS[a % len(COLORS)], width=2)))
+    fig.add_hline(y=0, line=dict(color=EXPERT_COLOR, dash="dash"), annotation_text="expert",
+                  annotation_position="top right")
+    fig.add_hline(y=1, line=dict(color=RANDOM_COLOR, dash="dash"), annotation_text="random (I_pre)",
+                  annotation_position="top right")
+    fig.update_yaxes(rangemode="tozero")
+    return _layout(fig, title, "iteration", "normalised L2 distance", theme)

@@ -203,8 +203,8 @@ def _class_means(states: np.ndarray, actions: np.ndarray, n_actions: int, chunk:
     for start in range(0, len(states), chunk):
         block = states[start:start + chunk].reshape(-1, dim).astype(np.float64)
         acts = actions[start:start + chunk]
-        keep = (acts >= 0) & (acts < n_actions)
-        np.add.at(sums, acts[keep], block[keep])
+        for a in range(n_actions):  # (np.add.at is much slower on wide rows)
+            sums[a] += block[acts == a].sum(axis=0)
     means = [sums[a] / counts[a] if counts[a] else None for a in range(n_actions)]
     return means, counts
 

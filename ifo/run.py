@@ -39,10 +39,11 @@ from ifo.io import (atomic_write_json, atomic_write_text, load_module_arrays, lo
 from ifo.methods import get_method
 from ifo.metrics import aer, performance, trajectory_fidelity
 from ifo.nets import InverseDynamics, Policy, feature_attention_map
+from ifo.probes import action_mean_image_distances, grad_cam_probe_record
 
 Progress = Callable[[str, int], None]  # (phase name, iteration) -> None
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes: the same seeds (or maze layouts) for every run
-PHASES = ("idm", "label", "policy", "rollout", "sampling", "evaluate")
+PHASES = ("idm", "label", "policy", "attention", "rollout", "sampling", "evaluate")
 
 
 class RunFinished(RuntimeError):
@@ -66,10 +67,11 @@ class Run:
         self.method = get_method(cfg.method)
         self.progress = progress
         torch.manual_seed(cfg.seed)
-        env_kwargs = {"obs_mode": cfg.obs_mode, "image_size": cfg.image_size} if self.spec.is_maze else {}
-        self.pool = EnvPool(self.spec, **env_kwargs, **({"split": "train"} if self.spec.is_maze else {}))
-        self.eval_pool = EnvPool(self.spec, **env_kwargs, **(
-            {"split": "eval", "deadlock_guard": cfg.deadlock_guard} if self.spec.is_maze else {}))
+        maze = {"obs_mode": cfg.obs_mode, "image_size": cfg.image_size} if self.spec.is_maze else None
+        # training runs (I_pre, I_pos) on training layouts; evaluation on held-out ones
+        self.pool = EnvPool(self.spec, **maze, split="train", max_steps=cfg.rollout_max_steps) if maze else EnvPool(self.spec)
+        self.eval_pool = (EnvPool(self.spec, **maze, split="eval", deadlock_guard=cfg.deadlock_guard) if maze
+                          else EnvPool(self.spec))
 
         # T_e: expert state pairs. The true actions stay inside `self.demos.hidden_actions`.
         if demos is None:
@@ -83,14 +85,12 @@ class Run:
 
         # I_pre: random-policy transitions, split 70/30 for the IDM's training and validation.
         rng = np.random.default_rng([cfg.seed, 0])
-        pre_pool = (EnvPool(self.spec, **env_kwargs, split="train", max_steps=4 * self.spec.kwargs["size"] ** 2)
-                    if self.spec.is_maze else self.pool)
         self.pre: PreDemonstrations | None = None
         self.train_set: Transitions | None = None  # I_s
         obs_shape = self.expert.states.shape[1:]
         self.idm = self.idm_optimizer = None
         if self.method.uses_idm:
-            everything = collect_random_transitions(pre_pool, self.spec.n_actions, cfg.pre_size, cfg.pre_per_action_cap,
+            everything = collect_random_transitions(self.pool, self.spec.n_actions, cfg.pre_size, cfg.pre_per_action_cap,
                                                     rng, seed_base=cfg.seed * 10_000_000, drop_unchanged=self.spec.is_maze)
             self.pre = stratified_split(everything, self.spec.n_actions, 0.3, rng)
             self.train_set = self.pre.train
@@ -199,6 +199,11 @@ class Run:
         att = feature_attention_map(self.policy)
         if att is not None:
             record["policy"]["attention"] = att.tolist()
+        probe_images = self.spec.is_maze and self.policy.is_image and cfg.attention_probes
+        if probe_images:
+            with self._phase("attention", seconds):  # Fig 6.1: Grad-CAM on fixed probe frames
+                record["attention"] = {"grad_cam": grad_cam_probe_record(
+                    self.policy, self.spec.kwargs["size"], cfg.image_size)}
 
         if self.idm is not None and self.method.iterative:
             with self._phase("rollout", seconds):  # I_pos and v_e
@@ -216,6 +221,11 @@ class Run:
                 self.train_set, mixture = build_training_set(cfg.sampling, self.pre.train, pos, ro.successful(),
                                                              win, n_actions, rng)
             record["sampling"] = {"mode": cfg.sampling, **mixture.as_record()}
+            if probe_images and hidden is not None:
+                with self._phase("attention", seconds):  # Fig 5.3: diagnostics with the hidden truth
+                    record["attention"]["mean_image_distance"] = action_mean_image_distances(
+                        self.pre.train.states, self.pre.train.actions, ro.states, ro.actions,
+                        t_e.states, hidden, n_actions)
 
         with self._phase("evaluate", seconds):
             record["evaluation"] = self._evaluate(cfg.eval_explore, rng)
