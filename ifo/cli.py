@@ -16,6 +16,7 @@ from ifo.envs import ENV_NAMES, UnknownEnvironment, get_env
 from ifo.methods import METHODS, UnknownMethod
 
 RUNS_DIR = Path("runs")
+DEFAULT_BENCH_ENVS = "cartpole,acrobot,mountaincar,lunarlander,maze5"
 
 
 class CliError(Exception):
@@ -146,9 +147,23 @@ def cmd_experts(a: argparse.Namespace) -> int:
 
 
 def cmd_bench(a: argparse.Namespace) -> int:
-    from ifo.bench import bench_table
+    if a.what == "reproduce":
+        from ifo.reproduce import reproduce
 
-    print(bench_table(a.envs.split(","), a.seeds, a.iterations, quick=a.quick))
+        if not a.table:
+            raise CliError("bench reproduce needs --table (5.1, 5.2, 6.1 or 6.2)")
+        envs = a.envs.split(",") if a.envs else None
+        text = reproduce(a.table, a.seeds, envs, a.iterations)
+    else:
+        from ifo.bench import bench_table
+
+        text = bench_table((a.envs or DEFAULT_BENCH_ENVS).split(","), a.seeds, a.iterations, quick=a.quick)
+    command = "python -m ifo " + " ".join(sys.argv[1:]) if a.out else ""
+    print(text)
+    if a.out:
+        from ifo.io import atomic_write_text
+
+        atomic_write_text(a.out, f"{text}\n\nMade with `{command}`.\n")
     return 0
 
 
@@ -182,8 +197,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--image-size", type=int, default=32)
     c.set_defaults(func=cmd_demos_check)
 
-    p = sub.add_parser("bench", help="random/expert AER and BC, BCO, BCO(α) Performance as a markdown table")
-    p.add_argument("--envs", default="cartpole,acrobot,mountaincar,lunarlander,maze5")
+    p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
+    p.add_argument("what", nargs="?", choices=["baselines", "reproduce"], default="baselines",
+                   help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis table")
+    p.add_argument("--table", choices=["5.1", "5.2", "6.1", "6.2"], help="which thesis table to reproduce")
+    p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
+    p.add_argument("--out", help="also write the table (and the command that made it) to this file")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")

@@ -61,6 +61,9 @@ class RunConfig:
     image_size: int = 32  # maze only
     rollout_max_steps: int | None = None  # maze: step limit of training runs (I_pre, I_pos)
     deadlock_guard: bool = False  # maze evaluation: end on the 4th visit to a cell with return -1
+    # maze evaluation layouts: "held-out" (never seen in demonstrations), or "demonstration":
+    # the layouts the demonstrations came from, as the thesis authors evaluated
+    maze_eval_layouts: str = "held-out"
     attention_probes: bool = True  # maze images: Grad-CAM maps and mean-image distances each iteration
 
     def resolved(self) -> "RunConfig":
@@ -101,6 +104,8 @@ class RunConfig:
             raise ValueError(f"sampling must be one of {SAMPLING_MODES}, got {self.sampling!r}")
         if self.obs_mode not in ("image", "vector"):
             raise ValueError(f"obs_mode must be 'image' or 'vector', got {self.obs_mode!r}")
+        if self.maze_eval_layouts not in ("held-out", "demonstration"):
+            raise ValueError(f"maze_eval_layouts must be 'held-out' or 'demonstration', got {self.maze_eval_layouts!r}")
         if not 16 <= self.image_size <= 256:
             raise ValueError(f"image_size must be between 16 and 256, got {self.image_size}")
         if any(h < 1 for h in self.hidden) or not self.hidden:

@@ -70,7 +70,8 @@ class Run:
         maze = {"obs_mode": cfg.obs_mode, "image_size": cfg.image_size} if self.spec.is_maze else None
         # training runs (I_pre, I_pos) on training layouts; evaluation on held-out ones
         self.pool = EnvPool(self.spec, **maze, split="train", max_steps=cfg.rollout_max_steps) if maze else EnvPool(self.spec)
-        self.eval_pool = (EnvPool(self.spec, **maze, split="eval", deadlock_guard=cfg.deadlock_guard) if maze
+        eval_split = "eval" if cfg.maze_eval_layouts == "held-out" else "train"
+        self.eval_pool = (EnvPool(self.spec, **maze, split=eval_split, deadlock_guard=cfg.deadlock_guard) if maze
                           else EnvPool(self.spec))
 
         # T_e: expert state pairs. The true actions stay inside `self.demos.hidden_actions`.
@@ -113,8 +114,9 @@ class Run:
         """Random and expert returns that Performance normalises by (per eval episode for the maze)."""
         refs = self.spec.references()
         n = self.config.eval_episodes
-        if self.spec.is_maze and "per_layout" in refs:
-            layouts = refs["per_layout"]
+        key = "per_layout" if self.config.maze_eval_layouts == "held-out" else "per_layout_demonstration"
+        if self.spec.is_maze and key in refs:
+            layouts = refs[key]
             idx = np.arange(n) % len(layouts["expert"])
             return {"random": np.asarray(layouts["random"])[idx], "expert": np.asarray(layouts["expert"])[idx],
                     "random_aer": refs.get("random_aer"), "expert_aer": refs.get("expert_aer")}
@@ -228,14 +230,17 @@ class Run:
                         t_e.states, hidden, n_actions)
 
         with self._phase("evaluate", seconds):
-            record["evaluation"] = self._evaluate(cfg.eval_explore, rng)
+            record["evaluation"] = self.evaluate(cfg.eval_explore, rng)
         seconds["total"] = sum(seconds.values())
         record["seconds"] = seconds
         self.records.append(record)
         return record
 
-    def _evaluate(self, explore: bool, rng: np.random.Generator) -> dict:
+    def evaluate(self, explore: bool = False, rng: np.random.Generator | None = None) -> dict:
+        """AER, Performance and fidelity of the current policy on the evaluation episodes,
+        with MAP actions or with actions sampled from its softmax (`explore`)."""
         cfg = self.config
+        rng = rng if rng is not None else np.random.default_rng([cfg.seed, 2, self.iteration])
         seeds = EVAL_SEED_BASE + np.arange(cfg.eval_episodes) if not self.spec.is_maze else np.arange(cfg.eval_episodes)
         ro = run_episodes(self.eval_pool, _act_with(self.policy, explore, rng), seeds,
                           skip_cycles=self._can_skip_cycles(explore) and not cfg.deadlock_guard)

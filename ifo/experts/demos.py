@@ -123,12 +123,17 @@ def measure_references(env: str, episodes: int = 100, log=print) -> dict:
         from ifo.envs.maze import layout_pool, random_return, shortest_path_return
 
         size = spec.kwargs["size"]
-        pool = layout_pool(size, "eval")
-        expert = [shortest_path_return(l) for l in pool]
-        rnd = [random_return(l, size, episodes=20, seed=k) for k, l in enumerate(pool)]
-        refs = {"random_aer": float(np.mean(rnd)), "expert_aer": float(np.mean(expert)),
-                "per_layout": {"random": [round(x, 6) for x in rnd], "expert": [round(x, 6) for x in expert]},
-                "episodes": len(pool)}
+
+        def per_layout(layouts):
+            return {"random": [round(random_return(l, size, episodes=20, seed=k), 6) for k, l in enumerate(layouts)],
+                    "expert": [round(shortest_path_return(l), 6) for l in layouts]}
+
+        held_out = per_layout(layout_pool(size, "eval"))
+        # the layouts demonstrations come from (seeds 0..99): the authors' evaluation protocol
+        demo_layouts = layout_pool(size, "train")[:episodes]
+        refs = {"random_aer": float(np.mean(held_out["random"])), "expert_aer": float(np.mean(held_out["expert"])),
+                "per_layout": held_out, "per_layout_demonstration": per_layout(demo_layouts),
+                "episodes": len(held_out["expert"])}
     else:
         seeds = EVAL_SEED_BASE + np.arange(episodes)
         pool = EnvPool(spec)
@@ -139,7 +144,7 @@ def measure_references(env: str, episodes: int = 100, log=print) -> dict:
     all_refs = dict(load_references())
     all_refs[spec.name] = refs
     atomic_write_json(ASSETS / "references.json", all_refs)
-    log(json.dumps({"env": spec.name, **{k: v for k, v in refs.items() if k != "per_layout"}}))
+    log(json.dumps({"env": spec.name, **{k: v for k, v in refs.items() if not k.startswith("per_layout")}}))
     return refs
 
 
