@@ -17,7 +17,12 @@ limit_threads()
 PLANNED_TITLES = {"gaifo": "GAIfO"}
 st.set_page_config(page_title="IfO Lab", page_icon=":material/school:", layout="wide")
 
-step_page = st.Page("pages/step_through.py", title="Step through a run", icon=":material/skip_next:", url_path="step")
+# url_path differs from the file's name on purpose. Streamlit treats a server's first session as a
+# v1 multipage app (because pages/ exists): a deep link to /step_through would then run the page
+# alone, without this file, for that whole session. /step instead shows a dismissable "Page not
+# found" dialog over the right page, once per server start (streamlit/streamlit#9992).
+step_page = st.Page("pages/step_through.py", title="Step through a run", icon=":material/skip_next:",
+                    url_path="step")
 
 
 def landing() -> None:

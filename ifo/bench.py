@@ -65,3 +65,22 @@ def bench_table(envs: list[str], seeds: int = 3, iterations: int | None = None, 
                  f"{' (quick settings)' if quick else ''}; P and AER at the last iteration, 100 evaluation "
                  "episodes on held-out seeds (maze: held-out layouts).")
     return "\n".join(lines)
+
+
+def speed_table(cases=(("cartpole", "iupe"), ("maze5", "iupe"), ("cartpole", "bco-alpha"), ("maze5", "bco-alpha")),
+                iterations: int = 5, log=lambda msg: print(msg, file=sys.stderr)) -> str:
+    """Seconds per iteration and per phase (median over iterations) for the interactive settings."""
+    phases = ("idm", "label", "policy", "attention", "rollout", "sampling", "evaluate")
+    lines = ["| environment | method | setup s | s/iteration (median) | " + " | ".join(phases) + " |",
+             "|" + "---|" * (4 + len(phases))]
+    for env, method in cases:
+        start = time.perf_counter()
+        run = Run(RunConfig(env=env, method=method, iterations=iterations))
+        setup = time.perf_counter() - start
+        run.run()
+        med = lambda key: float(np.median([r["seconds"].get(key, 0.0) for r in run.records]))  # noqa: E731
+        log(f"{env} {method}: {med('total'):.2f} s/iteration")
+        lines.append(f"| {env} | {method} | {setup:.2f} | {med('total'):.2f} | "
+                     + " | ".join(f"{med(p):.2f}" for p in phases) + " |")
+    lines += ["", f"{iterations} iterations each, default settings, torch threads: 1."]
+    return "\n".join(lines)

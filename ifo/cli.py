@@ -154,6 +154,10 @@ def cmd_bench(a: argparse.Namespace) -> int:
             raise CliError("bench reproduce needs --table (5.1, 5.2, 6.1 or 6.2)")
         envs = a.envs.split(",") if a.envs else None
         text = reproduce(a.table, a.seeds, envs, a.iterations)
+    elif a.what == "speed":
+        from ifo.bench import speed_table
+
+        text = speed_table(iterations=a.iterations or 5)
     else:
         from ifo.bench import bench_table
 
@@ -198,8 +202,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_demos_check)
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
-    p.add_argument("what", nargs="?", choices=["baselines", "reproduce"], default="baselines",
-                   help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis table")
+    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "speed"], default="baselines",
+                   help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
+                        "table; speed: seconds per iteration and per phase")
     p.add_argument("--table", choices=["5.1", "5.2", "6.1", "6.2"], help="which thesis table to reproduce")
     p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
     p.add_argument("--out", help="also write the table (and the command that made it) to this file")

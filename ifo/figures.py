@@ -23,6 +23,9 @@ def _layout(fig: go.Figure, title: str, x: str, y: str, theme: str = "screen") -
         margin=dict(l=60, r=20, t=60 if big else 45, b=60),
         **({"width": 1600, "height": 900} if big else {}),
     )
+    if x == "iteration":  # whole iterations only: no 1.5 ticks
+        last = max((max(t.x) for t in fig.data if getattr(t, "x", None) is not None and len(t.x)), default=1)
+        fig.update_xaxes(tick0=1, dtick=max(1, int(round(last / 10))))
     return fig
 
 

@@ -33,7 +33,8 @@ def _fmt(value, pattern: str) -> str:
 def _delta(records: list[dict], get, pattern: str) -> str | None:
     if len(records) < 2 or get(records[-1]) is None or get(records[-2]) is None:
         return None
-    return pattern.format(get(records[-1]) - get(records[-2]))
+    text = pattern.format(get(records[-1]) - get(records[-2]))
+    return text if any(c in "123456789" for c in text) else None  # no arrow for "no change"
 
 
 def metrics_row(records: list[dict]) -> None:

@@ -11,9 +11,12 @@ A page owns a `RunSlot` (named, so several pages can each keep their own run). T
 - shows the Run's `progress(phase, iteration)` callback as a progress bar.
 
 Clicks that arrive while an iteration trains are held back until the iteration ends (a
-Streamlit rerun request raised inside `Run.step()` would leave the run half-trained), and
-at most IFO_LAB_MAX_TRAININGS (default 2) iterations train at once across all sessions,
-because every session shares one process and a couple of cores.
+Streamlit rerun request raised inside `Run.step()` would leave the run half-trained). A
+click during a fragment run makes Streamlit start the full rerun at once, in another
+thread, while the cancelled fragment finishes its iteration: a per-slot lock makes the
+new run wait for it, so one run never trains twice at once and the page shows the true
+count. At most IFO_LAB_MAX_TRAININGS (default 2) iterations train at once across all
+sessions, because every session shares one process and a couple of cores.
 """
 from __future__ import annotations
 
@@ -26,8 +29,8 @@ import streamlit as st
 from streamlit.runtime.scriptrunner_utils.exceptions import ScriptControlException
 
 from ifo.config import RunConfig
-from ifo.run import Run, RunFinished
 from ifo.envs import get_env
+from ifo.run import PHASES, Run, RunFinished
 from ifo.ui.settings import Choice, method_label
 
 log = logging.getLogger(__name__)
@@ -39,19 +42,11 @@ PHASE_TEXT = {
     "idm": "training the inverse dynamics model (IDM) on I_s",
     "label": "labelling the expert's state pairs with the IDM",
     "policy": "training the policy on those labels",
+    "attention": "computing attention maps on probe images",
     "rollout": "running the policy to collect its own experience (I_pos)",
     "sampling": "choosing what the IDM learns from next (I_s)",
     "evaluate": "measuring the policy: AER and Performance",
 }
-
-
-def phases_of(run: Run) -> list[str]:
-    """The phases one iteration of this run goes through, in order."""
-    phases = ["idm", "label"] if run.idm is not None else []
-    phases.append("policy")
-    if run.idm is not None and run.method.iterative:
-        phases += ["rollout", "sampling"]
-    return phases + ["evaluate"]
 
 
 def _identity(config: RunConfig) -> dict:
@@ -73,6 +68,8 @@ class SlotState:
     target: int = 0  # iteration the user asked to reach
     playing: bool = False  # Run N in progress
     reset_requested: bool = False
+    training: bool = False  # an iteration is training right now (maybe in another thread)
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)  # one iteration at a time
     notices: list[str] = field(default_factory=list)
 
 
@@ -81,7 +78,7 @@ class _ProgressBar:
     requests at st.* calls; inside Run.step() we hold them back and re-raise after the step."""
 
     def __init__(self, area, run: Run):
-        self.area, self.phases, self.total = area, phases_of(run), run.config.iterations
+        self.area, self.total = area, run.config.iterations
         self.deferred: BaseException | None = None
 
     def show(self, fn, *args, **kwargs) -> None:
@@ -93,9 +90,10 @@ class _ProgressBar:
             self.deferred = e
 
     def __call__(self, phase: str, iteration: int) -> None:
-        k = self.phases.index(phase) if phase in self.phases else 0
-        text = f"Iteration {iteration} of {self.total}: {PHASE_TEXT.get(phase, phase)} ({k + 1}/{len(self.phases)})"
-        self.show(self.area.progress, k / len(self.phases), text=text)
+        # ifo.run.PHASES lists every phase in order; a method skips some, so the bar may jump
+        done = PHASES.index(phase) / len(PHASES) if phase in PHASES else 0.0
+        text = f"Iteration {iteration} of {self.total}: {PHASE_TEXT.get(phase, phase)}"
+        self.show(self.area.progress, done, text=text)
 
 
 class RunSlot:
@@ -139,6 +137,8 @@ class RunSlot:
             return None
         identity = _identity(config)
         if identity == s.identity and not s.reset_requested:
+            if s.run is not None:
+                s.error = None  # an earlier impossible setting was put right
             if s.run is not None and s.run.config.iterations != config.iterations:
                 s.run.config = replace(s.run.config, iterations=config.iterations)  # keep the records
                 s.target = min(s.target, config.iterations)
@@ -159,7 +159,7 @@ class RunSlot:
                 return None
         if previous is not None and previous.records:
             s.notices.append(f"New run: {describe(config)}. The previous run "
-                             f"({describe(previous.config)}, {previous.iteration} iterations) was set aside.")
+                             f"({describe(previous.config)}, {previous.iteration} iterations) was discarded.")
         return s.run
 
     def describe(self) -> str:
@@ -175,6 +175,12 @@ class RunSlot:
         return notes
 
     # ------------------------------------------------------------------ button callbacks
+    # They run at the start of a script run, possibly while an iteration the user interrupted
+    # still trains in another thread: count that iteration as done.
+    def _base(self) -> int:
+        s = self.state
+        return s.run.iteration + (1 if s.training else 0)
+
     def request_reset(self) -> None:
         self.state.reset_requested = True
 
@@ -182,38 +188,47 @@ class RunSlot:
         s = self.state
         if s.run is not None:
             s.playing, s.step_error = False, None
-            s.target = min(s.run.iteration + 1, s.run.config.iterations)
+            s.target = min(self._base() + 1, s.run.config.iterations)
 
     def request_run(self, n: int) -> None:
         s = self.state
         if s.run is not None:
             s.step_error = None
-            s.target = min(s.run.iteration + int(n), s.run.config.iterations)
+            s.target = min(self._base() + int(n), s.run.config.iterations)
             s.playing = s.target > s.run.iteration
 
     def pause(self) -> None:
         s = self.state
         s.playing = False
         if s.run is not None:
-            s.target = s.run.iteration
+            s.target = self._base()
 
     # ------------------------------------------------------------------ training
     def advance(self, area) -> bool:
         """Train one iteration if the run is behind its target, showing progress in `area`
         (an st.empty()). Returns True when this iteration ended a Run N, so the page can rerun
         in full and stop the fragment's timer."""
+        s = self.state
+        if s.run is None:
+            return False
+        bar = _ProgressBar(area, s.run)
+        # Streamlit starts a full rerun without waiting for a fragment run it cancels, so two
+        # threads of this session can get here at once: one trains, the other waits for it.
+        _acquire(s.lock, bar, area, "Finishing the iteration in progress...")
+        try:
+            return self._advance_locked(bar, area)
+        finally:
+            s.lock.release()
+
+    def _advance_locked(self, bar: "_ProgressBar", area) -> bool:
         s, run = self.state, self.state.run
-        if run is None or run.iteration >= min(s.target, run.config.iterations):
+        if run.iteration >= min(s.target, run.config.iterations):
             if s.playing:
                 s.playing = False
                 return True
             return False
-        bar = _ProgressBar(area, run)
-        if not _TRAININGS.acquire(blocking=False):
-            while bar.deferred is None and not _TRAININGS.acquire(timeout=0.25):
-                bar.show(area.info, "Waiting for other sessions' training to finish...")
-            if bar.deferred is not None:  # the user clicked while we waited: handle the click first
-                raise bar.deferred
+        _acquire(_TRAININGS, bar, area, "Waiting for other sessions' training to finish...")
+        s.training = True
         try:
             run.progress = bar
             run.step()
@@ -224,12 +239,23 @@ class RunSlot:
             s.step_error = f"Iteration {run.iteration + 1} failed: {e}"
             s.playing, s.target = False, run.iteration
         finally:
+            s.training = False
             run.progress = None
             _TRAININGS.release()
             bar.show(area.empty)
-        if bar.deferred is not None:
+        if bar.deferred is not None:  # the click that arrived during the iteration: handle it now
             raise bar.deferred
         if s.playing and run.iteration >= min(s.target, run.config.iterations):
             s.playing = False
             return True
         return False
+
+
+def _acquire(lock, bar: _ProgressBar, area, message: str) -> None:
+    """Take `lock`, showing `message` while waiting; a click while waiting abandons the wait."""
+    if lock.acquire(blocking=False):
+        return
+    while bar.deferred is None and not lock.acquire(timeout=0.25):
+        bar.show(area.info, message)
+    if bar.deferred is not None:
+        raise bar.deferred
