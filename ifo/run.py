@@ -19,6 +19,7 @@ import shutil
 import time
 import uuid
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -136,6 +137,26 @@ class Run:
 
     def _can_skip_cycles(self, sampled_actions: bool) -> bool:
         return self.spec.deterministic and not sampled_actions
+
+    def phases(self) -> list[str]:
+        """The phases one iteration of this run goes through, in order (for progress displays)."""
+        cfg = self.config
+        names = ["idm", "label"] if self.idm is not None else []
+        names.append("policy")
+        probes = self.spec.is_maze and self.policy.is_image and cfg.attention_probes
+        if probes:
+            names.append("attention")
+        if self.idm is not None and self.method.iterative:
+            names += ["rollout", "sampling"]
+        return names + ["evaluate"]
+
+    def set_iterations(self, n: int) -> None:
+        """Change how many iterations the full run has (never below the ones already done)."""
+        if not isinstance(n, int) or n < max(1, self.iteration):
+            raise ValueError(f"iterations must be a whole number >= {max(1, self.iteration)}, got {n!r}")
+        if not self.method.iterative and n != 1:
+            raise ValueError(f"{self.method.title} is a single pass: it has exactly one iteration")
+        self.config = replace(self.config, iterations=n)
 
     @property
     def iteration(self) -> int:

@@ -157,3 +157,20 @@ def test_a_short_bco_alpha_run_clearly_beats_the_random_policy():
     best = max(r["evaluation"]["aer"] for r in run.records)
     assert best > 5 * random_aer  # random ~21; the learner balances for hundreds of steps
     assert run.records[-1]["evaluation"]["performance"] > 0.5
+
+
+def test_phases_name_what_an_iteration_does(tiny_config):
+    assert Run(tiny_config()).phases() == ["idm", "label", "policy", "rollout", "sampling", "evaluate"]
+    assert Run(tiny_config(method="bco")).phases() == ["idm", "label", "policy", "evaluate"]
+    assert Run(tiny_config(method="bc")).phases() == ["policy", "evaluate"]
+
+
+def test_the_number_of_iterations_can_grow_but_not_below_what_is_done(tiny_config):
+    run = Run(tiny_config(iterations=1))
+    run.step()
+    run.set_iterations(3)
+    assert not run.finished and run.config.iterations == 3
+    with pytest.raises(ValueError, match=">= 1"):
+        run.set_iterations(0)
+    with pytest.raises(ValueError, match="single pass"):
+        Run(tiny_config(method="bco")).set_iterations(4)
