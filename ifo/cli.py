@@ -153,7 +153,8 @@ def cmd_bench(a: argparse.Namespace) -> int:
         if not a.table:
             raise CliError("bench reproduce needs --table (5.1, 5.2, 6.1 or 6.2)")
         envs = a.envs.split(",") if a.envs else None
-        text = reproduce(a.table, a.seeds, envs, a.iterations)
+        extra = {"maze_eval_layouts": a.maze_eval_layouts} if a.maze_eval_layouts else {}
+        text = reproduce(a.table, a.seeds, envs, a.iterations, **extra)
     elif a.what == "speed":
         from ifo.bench import speed_table
 
@@ -208,6 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--table", choices=["5.1", "5.2", "6.1", "6.2"], help="which thesis table to reproduce")
     p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
     p.add_argument("--out", help="also write the table (and the command that made it) to this file")
+    p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"],
+                   help="reproduce: evaluate mazes on held-out layouts (default) or on the demonstrations' layouts "
+                        "(the thesis authors' protocol)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")
