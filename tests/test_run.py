@@ -174,3 +174,4 @@ def test_the_number_of_iterations_can_grow_but_not_below_what_is_done(tiny_confi
         run.set_iterations(0)
     with pytest.raises(ValueError, match="single pass"):
         Run(tiny_config(method="bco")).set_iterations(4)
+
