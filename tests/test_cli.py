@@ -32,8 +32,8 @@ def test_train_json_contract_and_saved_run(tmp_path):
     assert run.iteration == 2 and run.records[-1]["evaluation"]["aer"] == pytest.approx(summary["aer"])
 
 
-def test_gymnasium_ids_and_aliases_are_accepted():
-    res = run_cli("train", "--env", "CartPole-v1", "--method", "BCO", "--json", "--quiet", *FAST)
+def test_gymnasium_ids_and_aliases_are_accepted(tmp_path):
+    res = run_cli("train", "--env", "CartPole-v1", "--method", "BCO", "--json", "--quiet", "--out", str(tmp_path), *FAST)
     assert res.returncode == 0, res.stderr
     summary = json.loads(res.stdout.strip().splitlines()[-1])
     assert summary["method"] == "bco" and summary["iterations"] == 1
