@@ -172,6 +172,25 @@ def cmd_bench(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(a: argparse.Namespace) -> int:
+    from ifo.export import ExportError, export_run
+
+    formats = [f.strip().lower() for f in a.formats.split(",") if f.strip()]
+    if not formats or any(f not in ("svg", "png", "pdf") for f in formats):
+        raise CliError(f"--formats must be a comma-separated list of svg, png, pdf; got {a.formats!r}")
+    if not Path(a.run_dir).is_dir():
+        raise CliError(f"no run folder {a.run_dir}")
+    start = time.perf_counter()
+    try:
+        paths = export_run(a.run_dir, a.out, formats, as_zip=a.zip)
+    except ExportError as exc:  # no Chromium, or it would not start
+        raise CliError(str(exc)) from exc
+    for path in paths:
+        print(path)
+    print(f"wrote {len(paths)} file(s) to {a.out} in {time.perf_counter() - start:.1f}s", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m ifo", description="IfO Lab: imitation learning from observation")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -216,6 +235,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("export", help="a saved run's figures (slide theme) as SVG/PNG/PDF, metrics.csv, config.json")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder saved by `train` or the app")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder to write into (made if missing)")
+    p.add_argument("--formats", default="svg,png,pdf", help="comma-separated, of svg, png, pdf (default: all)")
+    p.add_argument("--zip", action="store_true", help="write one DIR/<run>-slides.zip instead of loose files")
+    p.set_defaults(func=cmd_export)
     return parser
 
 
