@@ -41,6 +41,7 @@ from typing import Sequence
 import plotly.graph_objects as go
 
 from ifo import figures
+from ifo.envs import get_env
 
 FORMATS = ("svg", "png", "pdf")
 MIME = {"svg": "image/svg+xml", "png": "image/png", "pdf": "application/pdf"}
@@ -67,12 +68,13 @@ _TYPICAL_PATHS = (
 )
 
 # Names of the state variables, for the attention-over-variables figure (vector observations).
-FEATURE_NAMES = {
-    "cartpole": ("cart position", "cart velocity", "pole angle", "pole angular velocity"),
-    "acrobot": ("cos θ1", "sin θ1", "cos θ2", "sin θ2", "θ1 velocity", "θ2 velocity"),
-    "mountaincar": ("position", "velocity"),
-    "lunarlander": ("x", "y", "x velocity", "y velocity", "angle", "angular velocity", "left leg", "right leg"),
-}
+
+
+def _feature_names(env: str) -> tuple[str, ...]:
+    try:
+        return get_env(env).feature_names
+    except ValueError:
+        return ()
 
 
 class ExportError(RuntimeError):
@@ -426,7 +428,7 @@ def pack_files(records: Sequence[dict], config: dict, action_names: Sequence[str
     """The slide pack's files by relative path (figures/<name>.<fmt>, metrics.csv, config.json, README.txt).
     Empty `formats`: no figures (and no browser needed)."""
     formats = _check_formats(formats) if formats else ()
-    figs = run_figures(records, action_names, "slide", feature_names=FEATURE_NAMES.get(config.get("env", "")))
+    figs = run_figures(records, action_names, "slide", feature_names=_feature_names(config.get("env", "")))
     files = {f"figures/{k}": v for k, v in render_all(figs, formats).items()} if formats else {}
     figs = figs if formats else {}
     files["metrics.csv"] = metrics_csv(records).encode("utf-8")

@@ -20,6 +20,7 @@ from streamlit.testing.v1 import AppTest
 from ifo import export
 from ifo.cli import main
 from ifo.config import RunConfig
+from ifo.envs import get_env
 from ifo.run import Run
 
 needs_chromium = pytest.mark.skipif(export.find_chromium() is None, reason="no Chromium on this machine")
@@ -65,9 +66,9 @@ def test_run_figures_adds_attention_figures_only_when_records_have_them(saved_ru
     records[-1]["policy"]["attention"] = [0.4, 0.2, 0.2, 0.2]
     records[-1]["attention"] = {"grad_cam": {"maps": [[[0.0, 1.0], [0.5, 0.2]]], "actions": [1],
                                              "probabilities": [[0.3, 0.7]]}}
-    figs = export.run_figures(records, run.spec.action_names, feature_names=export.FEATURE_NAMES["cartpole"])
+    figs = export.run_figures(records, run.spec.action_names, feature_names=get_env("cartpole").feature_names)
     assert {"state_attention", "grad_cam"} <= set(figs) and "action_distance" not in figs
-    assert list(figs["state_attention"].data[0].x) == list(export.FEATURE_NAMES["cartpole"])
+    assert list(figs["state_attention"].data[0].x) == list(get_env("cartpole").feature_names)
 
 
 def test_slide_theme_copy_leaves_the_screen_figure_alone():

@@ -62,6 +62,7 @@ class EnvSpec:
     is_maze: bool = False
     thesis_name: str = ""
     deterministic: bool = False  # same state and action always give the same next state
+    feature_names: tuple[str, ...] = ()  # names of the state variables (vector states)
 
     @property
     def n_actions(self) -> int:
@@ -89,13 +90,17 @@ class EnvSpec:
 
 
 _CONTROL = [
-    EnvSpec("cartpole", "CartPole-v1", ("left", "right"), _cartpole_goal, thesis_name="CartPole"),
+    EnvSpec("cartpole", "CartPole-v1", ("left", "right"), _cartpole_goal, thesis_name="CartPole",
+            feature_names=("cart position", "cart velocity", "pole angle", "pole angular velocity")),
     EnvSpec("acrobot", "Acrobot-v1", ("torque -1", "torque 0", "torque +1"), _reached_terminal,
-            thesis_name="Acrobot"),
+            thesis_name="Acrobot",
+            feature_names=("cos θ1", "sin θ1", "cos θ2", "sin θ2", "θ1 velocity", "θ2 velocity")),
     EnvSpec("mountaincar", "MountainCar-v0", ("push left", "no push", "push right"), _reached_terminal,
-            thesis_name="MountainCar"),
+            thesis_name="MountainCar", feature_names=("position", "velocity")),
     EnvSpec("lunarlander", "LunarLander-v3", ("noop", "fire left", "fire main", "fire right"), _lunar_goal,
-            thesis_name="LunarLander"),
+            thesis_name="LunarLander",
+            feature_names=("x", "y", "x velocity", "y velocity", "angle", "angular velocity", "left leg contact",
+                           "right leg contact")),
 ]
 _MAZES = [
     EnvSpec(f"maze{n}", f"ifo/Maze{n}x{n}-v0", ("N", "S", "W", "E"), _maze_goal, kwargs={"size": n},
