@@ -47,4 +47,7 @@ def landing() -> None:
 
 
 home = st.Page(landing, title="Welcome", icon=":material/school:", default=True)
-st.navigation([home, step_page]).run()
+st.navigation([home, step_page,
+               st.Page("pages/runs.py", title="Your runs", icon=":material/folder_open:", url_path="runs"),
+               st.Page("pages/compare.py", title="Compare and ablate", icon=":material/compare_arrows:",
+                       url_path="compare")]).run()

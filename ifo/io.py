@@ -37,8 +37,9 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def atomic_write_json(path: str | os.PathLike, obj) -> None:
-    atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=True))
+def atomic_write_json(path: str | os.PathLike, obj, compact: bool = False) -> None:
+    text = json.dumps(obj, separators=(",", ":")) if compact else json.dumps(obj, indent=1, sort_keys=True)
+    atomic_write_text(path, text)
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:

@@ -311,7 +311,7 @@ class Run:
             arrays.update(self.train_set.arrays("train_set."))
         atomic_write_bytes(tmp / "state.npz", npz_bytes(arrays))
         atomic_write_json(tmp / "meta.json", meta)
-        atomic_write_json(tmp / "records.json", self.records)
+        atomic_write_json(tmp / "records.json", self.records, compact=True)
         tmp.rename(directory / name)
         atomic_write_json(directory / "config.json", self.config.to_dict())
         if self.config.demos and not (directory / "demos.npz").exists():

@@ -6,17 +6,24 @@ Runs are saved with `Run.save` (atomic); a run's display name lives in `label.js
 so renaming never moves the folder that holds the weights.
 
     runs_root()/<user>/<run id>/   config.json, LATEST, ckpt-*/, label.json
+    runs_root()/<user>/demos/      <name>.npz + <name>.json (environment, summary)
 
-IFO_LAB_RUNS sets the root (default: runs/app inside the project).
+IFO_LAB_RUNS sets the root (default: runs/app inside the project). Finished example runs
+ship in assets/runs/<name>/ (same layout, made by scripts/make_shipped_runs.py); opening
+one copies it into the user's folder. Uploaded demonstrations are written to a hidden
+temporary file, validated with `ifo.data.demos.load_demonstrations` (no pickle), and only
+then renamed over the final name, so a bad upload never replaces a good file.
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
 import shutil
 import time
 import uuid
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +31,10 @@ from ifo.io import atomic_write_json
 
 PROJECT = Path(__file__).resolve().parents[2]
 USER_PARAM = "user"
+SHIPPED_RUNS = PROJECT / "assets" / "runs"
+DEMOS_FOLDER = "demos"
+MAX_UPLOAD_MB = int(os.environ.get("IFO_LAB_MAX_UPLOAD_MB", "50"))
+MAX_DEMOS_PER_USER = 20
 
 
 def runs_root() -> Path:
@@ -57,6 +68,11 @@ class SavedRun:
     config: dict
     iterations_done: int
     modified: float
+    last: dict | None = None  # the last iteration's evaluation: aer, performance, goal_rate
+
+    @property
+    def iterations_total(self) -> int | None:
+        return self.config.get("iterations")
 
 
 def _safe_child(user: str, run_id: str) -> Path:
@@ -69,26 +85,51 @@ def run_path(user: str, run_id: str) -> Path:
     return _safe_child(user, run_id)
 
 
+def _read_saved(path: Path) -> SavedRun | None:
+    """A complete saved run in `path`, or None (half-written, damaged, not a run)."""
+    latest = path / "LATEST"
+    if not path.is_dir() or path.name.startswith(".") or not latest.exists():
+        return None
+    try:
+        config = json.loads((path / "config.json").read_text())
+        ckpt = path / latest.read_text().strip()
+        records = json.loads((ckpt / "records.json").read_text())
+        label_file = path / "label.json"
+        label = json.loads(label_file.read_text())["label"] if label_file.exists() else path.name
+        last = {k: records[-1]["evaluation"].get(k) for k in ("aer", "performance", "goal_rate")} if records else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return SavedRun(path.name, path, label, config, len(records), latest.stat().st_mtime, last)
+
+
 def list_runs(user: str) -> list[SavedRun]:
     """The user's saved runs, newest first. Folders without a complete save are skipped."""
     folder = user_dir(user)
     if not folder.exists():
         return []
-    runs = []
-    for path in folder.iterdir():
-        latest = path / "LATEST"
-        if not path.is_dir() or path.name.startswith(".") or not latest.exists():
-            continue
-        try:
-            config = json.loads((path / "config.json").read_text())
-            ckpt = path / latest.read_text().strip()
-            done = len(json.loads((ckpt / "records.json").read_text()))
-            label_file = path / "label.json"
-            label = json.loads(label_file.read_text())["label"] if label_file.exists() else path.name
-        except (OSError, ValueError, KeyError):
-            continue
-        runs.append(SavedRun(path.name, path, label, config, done, latest.stat().st_mtime))
+    runs = [r for r in map(_read_saved, folder.iterdir()) if r is not None and r.run_id != DEMOS_FOLDER]
     return sorted(runs, key=lambda r: r.modified, reverse=True)
+
+
+def get_run(user: str, run_id: str) -> SavedRun:
+    """One saved run; FileNotFoundError if it is gone (deleted meanwhile) or incomplete."""
+    saved = _read_saved(_safe_child(user, run_id))
+    if saved is None:
+        raise FileNotFoundError(f"no saved run {run_id!r} (it may have been deleted)")
+    return saved
+
+
+def last_records(saved: SavedRun) -> list[dict]:
+    """The records of a saved run's latest checkpoint ([] if unreadable)."""
+    try:
+        ckpt = saved.path / (saved.path / "LATEST").read_text().strip()
+        return json.loads((ckpt / "records.json").read_text())
+    except (OSError, ValueError):
+        return []
+
+
+def folder_bytes(path: Path) -> int:
+    return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
 
 
 def rename_run(user: str, run_id: str, label: str) -> None:
@@ -110,6 +151,180 @@ def delete_run(user: str, run_id: str) -> None:
     trash = path.with_name(f".deleted-{run_id}-{uuid.uuid4().hex[:6]}")
     path.rename(trash)  # one atomic step: the run disappears from the list at once
     shutil.rmtree(trash, ignore_errors=True)
+
+
+def zip_run(user: str, run_id: str) -> bytes:
+    """The run's folder (its latest checkpoint, configuration, label and demonstrations) as a ZIP."""
+    saved = get_run(user, run_id)
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for f in sorted(saved.path.rglob("*")):
+            rel = f.relative_to(saved.path)
+            if f.is_file() and not any(part.startswith(".") for part in rel.parts):
+                zf.write(f, Path(run_id) / rel)
+    return buf.getvalue()
+
+
+# ---------------------------------------------------------------------- shipped example runs
+def shipped_root() -> Path:
+    return Path(os.environ.get("IFO_LAB_SHIPPED_RUNS", SHIPPED_RUNS))
+
+
+def list_shipped_runs() -> list[SavedRun]:
+    """The finished example runs in assets/runs, in name order."""
+    root = shipped_root()
+    if not root.exists():
+        return []
+    return sorted((r for r in map(_read_saved, root.iterdir()) if r is not None), key=lambda r: r.run_id)
+
+
+def copy_shipped_run(user: str, name: str) -> str:
+    """Copy an example run into the user's folder (so it can be trained further); returns the new run id."""
+    if not re.fullmatch(r"[A-Za-z0-9._-]{1,120}", name or "") or name.startswith("."):
+        raise ValueError(f"not an example run: {name!r}")
+    source = _read_saved(shipped_root() / name)
+    if source is None:
+        raise FileNotFoundError(f"no example run {name!r}")
+    run_id = f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:4]}"
+    target = _safe_child(user, run_id)
+    tmp = target.with_name(f".{run_id}.partial")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copytree(source.path, tmp, ignore=shutil.ignore_patterns(".*"))
+    tmp.rename(target)  # appears in the list only once complete
+    return run_id
+
+
+# ---------------------------------------------------------------------- uploaded demonstrations
+@dataclass
+class SavedDemos:
+    name: str  # file stem, unique per user
+    path: Path
+    env: str
+    original_name: str
+    summary: dict  # episodes, transitions, mean_return, has_actions
+    modified: float
+
+
+def demos_dir(user: str) -> Path:
+    return user_dir(user) / DEMOS_FOLDER
+
+
+def demos_name(env: str, filename: str) -> str:
+    """The stored name for an upload: environment + a cleaned-up file stem."""
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "-", Path(filename or "demos").stem).strip("-_")[:60] or "demos"
+    return f"{env}-{stem}"
+
+
+def demo_obs_shapes(env: str) -> list[tuple[tuple[int, ...], str]]:
+    """The state shapes a demonstrations file may have for `env`, with the obs_mode each means."""
+    from ifo.config import RunConfig
+    from ifo.envs import get_env
+    from ifo.envs.rollout import EnvPool
+
+    spec = get_env(env)
+    if not spec.is_maze:
+        return [(tuple(spec.make().observation_space.shape), "vector")]
+    shapes = []
+    for mode in ("image", "vector"):
+        pool = EnvPool(spec, obs_mode=mode, image_size=RunConfig().image_size, split="train")
+        shapes.append((tuple(pool.envs(1)[0].observation_space.shape), mode))
+    return shapes
+
+
+def save_demos(user: str, env: str, filename: str, data: bytes) -> SavedDemos:
+    """Validate uploaded demonstrations and keep them under the user's demos/ folder.
+
+    Raises DemoError (its message says what is wrong, naming the uploaded file) and leaves any
+    earlier file of the same name untouched; the new file replaces it only once it is valid."""
+    from ifo.data.demos import DemoError, load_demonstrations, summarize
+    from ifo.envs import get_env
+
+    spec = get_env(env)
+    if len(data) > MAX_UPLOAD_MB * 2**20:
+        raise DemoError(f"{filename}: {len(data) / 2**20:.1f} MiB is over the {MAX_UPLOAD_MB} MiB upload limit")
+    folder = demos_dir(user)
+    folder.mkdir(parents=True, exist_ok=True)
+    name = demos_name(spec.name, filename)
+    final = folder / f"{name}.npz"
+    if not final.exists() and len(list_demos(user)) >= MAX_DEMOS_PER_USER:
+        raise DemoError(f"you already keep {MAX_DEMOS_PER_USER} demonstration files; delete one first")
+    tmp = folder / f".upload-{uuid.uuid4().hex[:8]}.npz"
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        demos, mode, first_error = None, None, None
+        for shape, mode in demo_obs_shapes(spec.name):
+            try:
+                demos = load_demonstrations(tmp, spec, shape)
+                break
+            except DemoError as e:
+                msg = str(e).replace(str(tmp), filename)
+                first_error = first_error or DemoError(msg)
+                if "shape" not in msg:  # not a shape mismatch: another state shape will not help
+                    break
+        if demos is None:
+            raise first_error
+        os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    meta = {"env": spec.name, "original_name": filename, "obs_mode": mode, "summary": summarize(demos)}
+    atomic_write_json(folder / f"{name}.json", meta)
+    return _read_demos(final)
+
+
+def _read_demos(path: Path) -> SavedDemos | None:
+    try:
+        meta = json.loads(path.with_suffix(".json").read_text())
+        return SavedDemos(path.stem, path, meta["env"], meta.get("original_name", path.name), meta.get("summary", {}),
+                          path.stat().st_mtime)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def list_demos(user: str) -> list[SavedDemos]:
+    """The user's validated demonstration files, newest first."""
+    folder = demos_dir(user)
+    if not folder.exists():
+        return []
+    found = [_read_demos(p) for p in folder.glob("*.npz") if not p.name.startswith(".")]
+    return sorted((d for d in found if d is not None), key=lambda d: d.modified, reverse=True)
+
+
+def demos_obs_mode(path: Path) -> str:
+    try:
+        return json.loads(Path(path).with_suffix(".json").read_text()).get("obs_mode") or "image"
+    except (OSError, ValueError):
+        return "image"
+
+
+def delete_demos(user: str, name: str) -> None:
+    if not re.fullmatch(r"[A-Za-z0-9_-]{1,120}", name or ""):
+        raise ValueError(f"not a demonstrations file: {name!r}")
+    path = demos_dir(user) / f"{name}.npz"
+    if not path.exists():
+        raise FileNotFoundError(f"no demonstrations file {name!r}")
+    path.unlink()
+    path.with_suffix(".json").unlink(missing_ok=True)
+
+
+# ---------------------------------------------------------------------- the user in the URL
+def current_user() -> str:
+    """The browser user's id: from `?user=` (a valid one), else the one this session already had,
+    else a new one. Always written back to the URL, so the link finds the same runs later."""
+    import streamlit as st
+
+    user = st.query_params.get(USER_PARAM)
+    if not valid_user(user):
+        user = st.session_state.get("ifo.user")
+        if not valid_user(user):
+            user = new_user()
+    st.session_state["ifo.user"] = user
+    if st.query_params.get(USER_PARAM) != user:
+        st.query_params[USER_PARAM] = user
+    return user
 
 
 def save_run(run, user: str, run_id: str, label: str | None = None) -> Path:

@@ -1,0 +1,257 @@
+"""What the compare page and the run list share: configurations to queue, the thesis's numbers
+for a configuration, the summary table in the thesis's layout, and the queue panel.
+
+Pure helpers first (no streamlit; tested directly), then the drawing functions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ifo.config import RunConfig
+from ifo.envs import get_env
+from ifo.methods import get_method
+from ifo.reproduce import NOT_IMPLEMENTED, TABLES
+from ifo.ui.settings import fast_overrides
+
+COMPONENTS = ("attention", "sampling", "explore_labels", "explore_rollouts")
+PRESET_TABLES = ("5.2", "6.2")
+
+
+@dataclass(frozen=True)
+class Planned:
+    """One configuration to queue: its group label (rows of the summary) and its config per seed."""
+
+    group: str
+    config: RunConfig  # seed filled in per job
+    thesis: tuple | None  # (P, AER, source) or None
+
+
+def env_title(env: str) -> str:
+    spec = get_env(env)
+    return spec.thesis_name or spec.name
+
+
+def _kind(config: RunConfig) -> tuple:
+    """What makes two configurations the same experiment for the thesis tables."""
+    cfg = config.resolved()
+    method = get_method(cfg.method)
+    kind = "bc" if not method.uses_idm else ("bco" if not method.iterative else "loop")
+    return (kind, *(getattr(cfg, c) for c in COMPONENTS))
+
+
+def thesis_numbers(config: RunConfig) -> tuple | None:
+    """(P, AER, "Table x.y: row") the thesis reports for this configuration on its environment, or None."""
+    env = get_env(config.env).name
+    kind = _kind(config)
+    for table_id in ("6.1", "5.1", "5.2", "6.2"):
+        table = TABLES[table_id]
+        if env not in table.envs:
+            continue
+        for row in table.rows:
+            if row.method in ("expert", "random") or row.method in NOT_IMPLEMENTED:
+                continue
+            if _kind(RunConfig(env=env, method=row.method, **row.overrides)) != kind:
+                continue
+            values = table.thesis.get(row.label, {}).get(env)
+            if values is not None and any(v is not None for v in values):
+                return (values[0], values[1], f"Table {table_id}: {row.label}")
+    return None
+
+
+def switches_label(config: RunConfig) -> str:
+    """A configuration's name: the method's, or the loop with its switches spelled out."""
+    cfg = config.resolved()
+    method = get_method(cfg.method)
+    if all(method.components.get(c) == getattr(cfg, c) for c in COMPONENTS):
+        return method.title
+    parts = []
+    if cfg.attention != "none":
+        parts.append(f"attention ({cfg.attention})")
+    if cfg.sampling != "none":
+        parts.append(f"sampling {cfg.sampling}")
+    if cfg.explore_labels or cfg.explore_rollouts:
+        parts.append("exploration" if cfg.explore_labels and cfg.explore_rollouts else
+                     ("exploring labels" if cfg.explore_labels else "exploring rollouts"))
+    return f"{method.title} + " + " + ".join(parts) if parts else f"{method.title} (no components)"
+
+
+def group_label(name: str, config: RunConfig) -> str:
+    cfg = config.resolved()
+    label = f"{name} · {env_title(cfg.env)}"
+    default = RunConfig(env=cfg.env, method=cfg.method).resolved().iterations
+    if cfg.iterations != default:
+        label += f" · {cfg.iterations} it."
+    if cfg.demos:
+        label += " · your demos"
+    return label
+
+
+def plan(config: RunConfig, name: str | None = None, thesis: tuple | None = None) -> Planned:
+    config = RunConfig.from_dict({**config.to_dict(), **fast_overrides()}).resolved()
+    name = name or switches_label(config)
+    if thesis is None and not config.demos:
+        thesis = thesis_numbers(config)
+    return Planned(group_label(name, config), config, thesis)
+
+
+def method_configs(env: str, methods: list[str], iterations: int | None = None) -> list[Planned]:
+    return [plan(RunConfig(env=env, method=m, iterations=iterations if get_method(m).iterative else None))
+            for m in methods]
+
+
+def switch_config(env: str, attention: bool, sampling: str, exploration: bool,
+                  iterations: int | None = None) -> Planned:
+    """The one loop (BCO(α)) with the thesis's ablation switches set by hand."""
+    return plan(RunConfig(env=env, method="bco-alpha", iterations=iterations,
+                          attention="gated" if attention else "none", sampling=sampling,
+                          explore_labels=exploration, explore_rollouts=exploration))
+
+
+def preset_configs(table_id: str, env: str | None = None, iterations: int | None = None) -> list[Planned]:
+    """Every row of an ablation table (5.2 or 6.2) as a configuration, on the table's maze or `env`."""
+    table = TABLES[table_id]
+    env = get_env(env or table.envs[0]).name
+    out = []
+    for row in table.rows:
+        # the row's own table first: the thesis's tables do not always agree (BCO(α) on the 5×5
+        # maze has AER 0.104 in Table 5.1 but -0.941 in Table 5.2)
+        own = table.thesis.get(row.label, {}).get(env)
+        thesis = (*own, f"Table {table_id}: {row.label}") if own else None
+        out.append(plan(RunConfig(env=env, method=row.method, iterations=iterations, **row.overrides), row.label,
+                        thesis))
+    return out
+
+
+def _mean_sd(values: list) -> str:
+    values = [v for v in values if v is not None]
+    if not values:
+        return "—"
+    if len(values) == 1:
+        return f"{values[0]:.3f}"
+    return f"{np.mean(values):.3f} ± {np.std(values):.3f}"
+
+
+def _num(v) -> str:
+    return "—" if v is None else f"{v:.3f}"
+
+
+def summary_rows(entries: list[dict]) -> list[dict]:
+    """The thesis's layout: one row per configuration, P and AER ours (mean ± sd over its seeds, at
+    each seed's latest iteration) beside the thesis's numbers.
+
+    `entries`: dicts with group, records, total (iterations), state, thesis (or None)."""
+    groups: dict[str, list[dict]] = {}
+    for e in entries:
+        groups.setdefault(e["group"], []).append(e)
+    rows = []
+    for group, members in groups.items():
+        lasts = [m["records"][-1]["evaluation"] for m in members if m["records"]]
+        finished = sum(1 for m in members if m["records"] and len(m["records"]) >= m["total"])
+        thesis = next((m["thesis"] for m in members if m.get("thesis")), None)
+        failed = sum(1 for m in members if m.get("state") == "error")
+        status = f"{finished}/{len(members)} finished" + (f", {failed} failed" if failed else "")
+        its = sorted({len(m["records"]) for m in members if m["records"]})
+        rows.append({
+            "configuration": group,
+            "seeds": status,
+            "iteration": "—" if not its else (str(its[0]) if len(its) == 1 else f"{its[0]}–{its[-1]}"),
+            "P (ours)": _mean_sd([ev.get("performance") for ev in lasts]),
+            "P (thesis)": _num(thesis[0]) if thesis else "—",
+            "AER (ours)": _mean_sd([ev.get("aer") for ev in lasts]),
+            "AER (thesis)": _num(thesis[1]) if thesis else "—",
+            "thesis source": thesis[2] if thesis and len(thesis) > 2 else "",
+        })
+    return rows
+
+
+# ----------------------------------------------------------------------------- drawing
+STATE_TEXT = {"queued": "waiting", "running": "training", "done": "finished", "error": "failed",
+              "cancelled": "cancelled"}
+REFRESH_SECONDS = 2.0
+
+
+def queue_jobs(planned: list[Planned], seeds: int, user: str, queue) -> int:
+    """Queue every planned configuration once per seed 0..seeds-1; returns how many jobs were queued."""
+    from dataclasses import replace
+
+    n = 0
+    for p in planned:
+        for seed in range(seeds):
+            queue.submit(user, replace(p.config, seed=seed), label=f"{p.group}, seed {seed}", group=p.group,
+                         thesis=p.thesis)
+            n += 1
+    return n
+
+
+def job_line(job) -> str:
+    state = STATE_TEXT.get(job.state, job.state)
+    if job.state == "queued":
+        state += f" (position {job.position} in the queue)"
+    elif job.state == "running":
+        state += f": iteration {job.iteration + 1} of {job.total}" + (f", {job.phase}" if job.phase else "")
+    elif job.state in ("done", "cancelled"):
+        state += f" after {job.iteration} of {job.total} iterations"
+    if job.records:
+        ev = job.records[-1]["evaluation"]
+        perf = ev.get("performance")
+        state += f" · AER {ev['aer']:.2f}" + ("" if perf is None else f" · P {perf:.2f}")
+    return f"**{job.label}**: {state}"
+
+
+def queue_panel(user: str, queue, key: str, show_results: bool = True, extra_runs: list | None = None) -> None:
+    """The user's queued jobs with progress and cancel buttons, then (optionally) their curves and the
+    summary table. Call it inside a fragment that reruns every REFRESH_SECONDS while jobs are active."""
+    import streamlit as st
+
+    from ifo import figures
+    from ifo.ui.panels import CHART_CONFIG
+
+    jobs = queue.jobs(user)
+    if not jobs and not extra_runs:
+        st.info("Nothing queued yet: add configurations above.")
+        return
+    if jobs:
+        active = [j for j in jobs if j.active]
+        st.markdown(f"**Queue:** {len(active)} waiting or training, {len(jobs) - len(active)} ended. "
+                    "Runs train one after another in the background (you may close this tab); "
+                    "each is saved after every iteration to *Your runs*.")
+        for job in jobs:
+            text, button = st.columns([6, 1], vertical_alignment="center")
+            with text:
+                st.markdown(job_line(job))
+                if job.state == "running" and job.total:
+                    st.progress(job.iteration / job.total)
+                if job.error:
+                    st.error(f"{job.label} failed: {job.error}")
+            if job.active:
+                button.button("Cancel", key=f"{key}.cancel.{job.id}", on_click=queue.cancel, args=(user, job.id),
+                              help="A waiting run is dropped; a training run stops after its current iteration.")
+        left, right, _ = st.columns([1, 1, 3])
+        if any(j.active for j in jobs):
+            left.button("Cancel all", key=f"{key}.cancel_all", on_click=queue.cancel_all, args=(user,))
+        if any(not j.active for j in jobs):
+            right.button("Clear ended", key=f"{key}.clear", on_click=queue.clear_finished, args=(user,),
+                         help="Forget ended jobs here; their runs stay in Your runs.")
+    if not show_results:
+        return
+    entries = [{"group": j.group, "label": j.label, "records": j.records, "total": j.total, "state": j.state,
+                "thesis": j.thesis} for j in jobs] + list(extra_runs or [])
+    with_records = [(e["label"], e["records"]) for e in entries if e["records"]]
+    st.subheader("Results")
+    if not with_records:
+        st.caption("Curves appear after each run's first iteration.")
+    else:
+        left, right = st.columns(2)
+        with left:
+            st.plotly_chart(figures.compare_runs(with_records, "performance"), key=f"{key}.performance",
+                            config=CHART_CONFIG)
+            st.caption("Performance: 0 is a random policy, 1 the expert (Eq 4.2).")
+        with right:
+            st.plotly_chart(figures.compare_runs(with_records, "aer"), key=f"{key}.aer", config=CHART_CONFIG)
+            st.caption("Average episodic reward after each iteration (Eq 4.1).")
+    st.markdown("**Summary, in the thesis's layout**: one row per configuration; *ours* is the mean ± standard "
+                "deviation over its seeds at each seed's latest iteration, beside the number the thesis reports "
+                "for the same configuration where it has one.")
+    st.dataframe(summary_rows(entries), hide_index=True, width="stretch")
