@@ -1,26 +1,34 @@
-"""Step through a run: pick an environment and a method, then Step, Run N or Reset.
+"""Step through a run: pick an environment, a method and its switches, then Step, Play or Reset.
 
 Thin by design: widgets (ifo.ui.settings) -> RunConfig -> the session's Run (ifo.ui.session)
--> records -> figures from ifo.figures -> screen (ifo.ui.panels). Training happens in this
-process, one iteration per script run; while *Run N* plays, a fragment reruns every
-`slot.tick` seconds and trains one iteration each time, so every button keeps working.
+-> records -> the registry's panels (ifo.ui.registry, drawn by ifo.ui.panels) and the loop
+diagram (ifo.ui.diagram). Training happens in this process, one iteration per script run;
+while playing, a fragment reruns every `slot.tick` seconds and trains one iteration each
+time, so every button keeps working. Each iteration is autosaved under the URL's user.
+URL: the settings live in it (share the link); `?hide=settings,diagram,...` hides parts
+for a lesson; `?run=<id>` reopens a saved run.
 IFO_LAB_FAST=1 shrinks every run (see ifo.ui.settings).
 """
 import streamlit as st
 
-from ifo import figures
 from ifo.runtime import limit_threads
-from ifo.ui.panels import counter, grid, metrics_row
-from ifo.ui.session import RunSlot
-from ifo.ui.settings import run_settings
+from ifo.ui.diagram import loop_diagram
+from ifo.ui.panels import CHART_CONFIG, PanelContext, counter, draw_panels, metrics_row
+from ifo.ui.registry import active_panels
+from ifo.ui.session import RunSlot, current_user, hidden
+from ifo.ui.settings import choice_without_widgets, run_settings
 
 limit_threads()
+KEY = "step"
+hide = hidden()
 st.title("Step through a run")
 st.caption("Each press of Step is one iteration of the BCO loop: train the IDM, label the expert's "
            "state pairs, train the policy, run it, and choose what the IDM learns from next.")
 
-slot = RunSlot("step")
-choice = run_settings("step")
+slot = RunSlot(KEY)
+slot.state.user = current_user()
+slot.open_from_url(KEY)  # ?run=<id>: a saved run, before the widgets take their values
+choice = choice_without_widgets(KEY) if "settings" in hide else run_settings(KEY, bind=True)
 run = slot.ensure(choice)
 for note in slot.pop_notices():
     st.toast(note)
@@ -30,65 +38,74 @@ if run is None:
     st.stop()
 
 controls = st.container()
+sizes = dict(pre_size=len(run.pre.train) if run.pre is not None else None, expert_size=len(run.expert))
 
 
 @st.fragment(run_every=slot.tick)
 def live():
-    if slot.advance(st.empty()):  # a Run N just ended: redraw the buttons, stop the timer
+    progress, count_area, scrub_area, diagram_area = st.empty(), st.empty(), st.empty(), st.empty()
+    last = {"phase": None}
+
+    def on_phase(phase, iteration):  # highlight the phase being trained
+        if "diagram" in hide or phase == last["phase"]:
+            return
+        last["phase"] = phase
+        diagram_area.plotly_chart(loop_diagram(run.records[-1] if run.records else None, phase, **sizes),
+                                  config=CHART_CONFIG)
+
+    if slot.advance(progress, on_phase):  # a Play just ended: redraw the buttons, stop the timer
         st.rerun()
+    slot.sync_url()
     if slot.state.step_error:
         st.error(slot.state.step_error)
-    records, names = slot.records, run.spec.action_names
-    counter(run.iteration, run.config.iterations)
+    if slot.state.save_error:
+        st.warning(slot.state.save_error)
+    records = slot.records
+    with count_area:
+        counter(run.iteration, run.config.iterations)
+    shown = None
+    if len(records) >= 2:
+        shown = scrub_area.slider("Show iteration", 1, len(records), len(records), key="step.view",
+                                  help="Scrub back through past iterations: every chart and the diagram "
+                                       "show the iteration you pick. The latest is the default.")
+    record = next((r for r in records if r["iteration"] == shown), records[-1] if records else None)
+    if "diagram" not in hide:
+        diagram_area.plotly_chart(loop_diagram(record, None, **sizes), key="step.diagram", config=CHART_CONFIG)
+        st.caption("The loop of every IfO method here: the box being trained lights up; the numbers are the "
+                   "sizes of the data flowing round at the iteration shown. *Thesis Algorithms 5.1 (ABCO) and 6.1 (IUPE).*")
     if not records:
         st.info("Press **Step** to train the first iteration.")
         return
-    metrics_row(records)
-    has_idm = "idm" in records[-1]
-    panels = [
-        (figures.learning_curve(records, "aer"), "step.aer",
-         "Average episodic reward: the learner's mean score after each iteration, "
-         "with the expert's and a random policy's scores as dashed lines."),
-        (figures.learning_curve(records, "performance"), "step.performance",
-         "Performance rescales that score so a random policy is 0 and the expert is 1."),
-    ]
-    if has_idm:
-        panels.append((figures.idm_predictions(records, names), "step.idm",
-                       "What the IDM says the expert did on each demonstrated transition, next to what it really "
-                       "did: the true actions are hidden from the learner and shown only to you."))
-    panels.append((figures.accuracy_curves(records), "step.accuracy",
-                   "How often the IDM's labels and the policy's choices match the expert's hidden actions."))
-    if any("rollouts" in r for r in records):
-        panels.append((figures.win_probability(records), "step.win",
-                       "The share of the policy's own runs in each iteration that reached the goal."))
-    if has_idm:
-        panels.append((figures.idm_predictions_over_time(records, names), "step.idm_over_time",
-                       "The IDM's predicted share of each action, iteration after iteration; "
-                       "dotted lines are the true shares."))
-    grid(panels)
-    if not has_idm:
+    view = [r for r in records if shown is None or r["iteration"] <= shown]
+    if "metrics" not in hide:
+        metrics_row(view)
+    draw_panels(active_panels(run, hide), PanelContext(slot, run, records, shown))
+    if not run.method.uses_idm:
         st.info("BC learns from the expert's true actions, so there is no IDM to show.")
 
 
 live()
 
-with controls:
-    st.markdown(f"**Current run:** {slot.describe()}")
-    done = run.finished
-    step, n_col, run_n, reset = st.columns([1, 1, 1, 1], vertical_alignment="bottom")
-    step.button("Step", key="step", type="primary", on_click=slot.request_step, disabled=done,
-                help="Train one iteration.", width="stretch")
-    n_col.number_input("N", min_value=1, max_value=1000, value=5, step=1, key="run_n",
-                       help="How many iterations Run N trains, one after another.")
-    if slot.playing:
-        run_n.button("Pause", key="pause", on_click=slot.pause, width="stretch",
-                     help="Stop after the iteration that is training now.")
-    else:
-        run_n.button("Run N", key="run", on_click=lambda: slot.request_run(st.session_state["run_n"]),
-                     disabled=done, width="stretch",
-                     help="Train the next N iterations (stops at the end of the run).")
-    reset.button("Reset", key="reset", on_click=slot.request_reset, width="stretch",
-                 help="Start this run again from scratch with the current settings.")
-    if done:
-        st.success(f"The run has done all {run.config.iterations} iterations. Press Reset to start again, "
-                   "or raise the number of iterations in the sidebar to continue.")
+if "controls" not in hide:
+    with controls:
+        st.markdown(f"**Current run:** {slot.describe()}")
+        done = run.finished
+        step, n_col, play, to_end, reset = st.columns([1, 1, 1, 1.3, 1], vertical_alignment="bottom")
+        step.button("Step", key="step", type="primary", on_click=slot.request_step, disabled=done,
+                    help="Train one iteration.", width="stretch")
+        n_col.number_input("N", min_value=1, max_value=1000, value=5, step=1, key="run_n",
+                           help="How many iterations Run N trains, one after another.")
+        if slot.playing:
+            play.button("Pause", key="pause", on_click=slot.pause, width="stretch",
+                        help="Stop after the iteration that is training now.")
+        else:
+            play.button("Run N", key="run", on_click=lambda: slot.request_run(st.session_state["run_n"]),
+                        disabled=done, width="stretch", help="Play: train the next N iterations, one after another.")
+        to_end.button("Run to the end", key="run_all", on_click=slot.request_run_to_end,
+                      disabled=done or slot.playing, width="stretch",
+                      help=f"Play every remaining iteration (up to {run.config.iterations}); Pause stops it.")
+        reset.button("Reset", key="reset", on_click=slot.request_reset, width="stretch",
+                     help="Start this run again from scratch with the current settings.")
+        if done:
+            st.success(f"The run has done all {run.config.iterations} iterations. Press Reset to start again, "
+                       "or raise the number of iterations in the sidebar to continue.")

@@ -2,6 +2,7 @@
 
 Runs are tiny (IFO_LAB_FAST=1) and always on CartPole, whose demonstrations are shipped.
 AppTest never ticks a fragment's `run_every`; a plain `at.run()` stands in for one tick.
+Autosaves go to a temporary IFO_LAB_RUNS.
 """
 from pathlib import Path
 
@@ -10,25 +11,46 @@ from streamlit.testing.v1 import AppTest
 
 ROOT = Path(__file__).resolve().parents[1]
 STEP_PAGE = "pages/step_through.py"
+DIAGRAM = "step.diagram"
 
 
 @pytest.fixture(autouse=True)
-def fast_runs(monkeypatch):
+def fast_runs(monkeypatch, tmp_path):
     monkeypatch.setenv("IFO_LAB_FAST", "1")
+    monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
 
 
-def open_app() -> AppTest:
+def open_app(**query) -> AppTest:
     at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+    at.query_params.update(query)
     at.run()
     assert not at.exception
     return at
 
 
-def open_step_page() -> AppTest:
-    at = open_app()
+def open_step_page(**query) -> AppTest:
+    at = open_app(**query)
     at.switch_page(STEP_PAGE).run()
     assert not at.exception
     return at
+
+
+def chart_keys(at: AppTest) -> list[str]:
+    return [c.key for c in at.get("plotly_chart")]
+
+
+def chart(at: AppTest, key: str):
+    return next(c for c in at.get("plotly_chart") if c.key == key)
+
+
+def chart_title(at: AppTest, key: str) -> str:
+    import json
+
+    return json.loads(chart(at, key).proto.spec)["layout"]["title"]["text"]
+
+
+def slot(at: AppTest):
+    return at.session_state["ifo.slot.step"]
 
 
 def counter(at: AppTest) -> str:
@@ -56,8 +78,9 @@ def test_step_page_loads_ready_to_step():
     at = open_step_page()
     assert not at.error
     assert counter(at) == "Iteration 0 of 10"
-    assert {b.key for b in at.button} >= {"step", "run", "reset"}
-    assert len(at.get("plotly_chart")) == 0
+    assert {b.key for b in at.button} >= {"step", "run", "run_all", "reset"}
+    assert chart_keys(at) == [DIAGRAM]  # the loop diagram, before any chart of results
+    assert "before the first iteration" in chart_title(at, DIAGRAM)
     assert "Press **Step**" in at.info[0].value
 
 
@@ -67,10 +90,12 @@ def test_step_step_reset():
     assert not at.exception and not at.error
     assert len(records(at)) == 1
     assert counter(at) == "Iteration 1 of 10"
-    charts = at.get("plotly_chart")
-    # AER, Performance, IDM predictions, accuracy, win probability, IDM predictions through time
-    assert len(charts) == 6
+    # the diagram, then the registry's panels that apply to BCO(α): no exploration, no attention
+    assert chart_keys(at) == [DIAGRAM] + [f"panel.{k}" for k in (
+        "aer", "performance", "idm", "idm_over_time", "accuracy", "sampling", "win")]
     assert {m.label for m in at.metric} == {"AER", "Performance P", "Goal rate", "Seconds per iteration"}
+    captions = " ".join(c.value for c in at.caption)
+    assert "Thesis Fig 5.2/6.2a" in captions and "hidden" in captions  # each panel: explanation + figure
 
     at.button(key="step").click().run()
     assert len(records(at)) == 2
@@ -81,7 +106,7 @@ def test_step_step_reset():
     assert not at.exception
     assert records(at) == []
     assert counter(at) == "Iteration 0 of 10"
-    assert len(at.get("plotly_chart")) == 0
+    assert chart_keys(at) == [DIAGRAM]
 
 
 def test_run_n_trains_one_iteration_per_rerun_and_can_pause():
@@ -141,7 +166,7 @@ def test_bc_has_no_idm_panel():
     at.button(key="step").click().run()
     assert not at.exception and not at.error
     assert any("no IDM" in i.value for i in at.info)
-    assert len(at.get("plotly_chart")) == 3  # AER, Performance, accuracy
+    assert chart_keys(at) == [DIAGRAM, "panel.aer", "panel.performance", "panel.accuracy"]
 
 
 def test_missing_demonstrations_show_an_error_not_a_traceback(monkeypatch, tmp_path):
@@ -159,3 +184,209 @@ def test_missing_demonstrations_show_an_error_not_a_traceback(monkeypatch, tmp_p
     monkeypatch.setattr(ifo.data.demos, "DEMOS_DIR", ROOT / "assets" / "demos")  # they arrive
     at.button(key="retry").click().run()
     assert not at.error and counter(at) == "Iteration 0 of 10"
+
+
+def test_run_to_the_end_plays_every_remaining_iteration():
+    at = open_step_page()
+    at.number_input(key="step.iterations.cartpole.bco-alpha").set_value(3).run()
+    at.button(key="run_all").click().run()
+    assert "pause" in {b.key for b in at.button}
+    for _ in range(3):
+        at.run()
+    assert counter(at) == "Iteration 3 of 3"
+    assert at.button(key="run_all").disabled and not at.exception
+
+
+def test_scrubbing_shows_a_past_iteration_everywhere():
+    at = open_step_page()
+    for _ in range(2):
+        at.button(key="step").click().run()
+    assert "iteration 2" in chart_title(at, "panel.idm")
+    at.slider(key="step.view").set_value(1).run()
+    assert not at.exception
+    assert "iteration 1" in chart_title(at, "panel.idm")
+    assert "iteration 1" in chart_title(at, DIAGRAM)
+    assert "after iteration 1" in chart_title(at, "panel.sampling")
+    assert len(records(at)) == 2  # scrubbing trains nothing
+
+
+def test_toggling_exploration_starts_a_new_run_with_it():
+    at = open_step_page()
+    at.button(key="step").click().run()
+    assert "panel.exploration" not in chart_keys(at)
+    at.toggle(key="step.explore_labels").set_value(True).run()
+    assert not at.exception
+    assert counter(at) == "Iteration 0 of 10"  # a new run
+    run = slot(at).run
+    assert run.config.explore_labels is True and run.config.explore_rollouts is False
+    at.button(key="step").click().run()
+    assert "panel.exploration" in chart_keys(at)  # a panel that now applies
+    assert len(chart_keys(at)) == 9
+
+
+def test_choosing_a_method_sets_its_switches():
+    at = open_step_page()
+    at.selectbox(key="step.method").select("iupe").run()
+    assert at.selectbox(key="step.attention").value == "gated"
+    assert at.selectbox(key="step.sampling").value == "iupe"
+    assert at.toggle(key="step.explore_labels").value and at.toggle(key="step.explore_rollouts").value
+    assert slot(at).run.config.method == "iupe"
+
+
+def test_a_preset_applies_its_components():
+    at = open_step_page()
+    at.selectbox(key="step.preset").select("t6.2:Sampling + Exploration").run()
+    assert not at.exception
+    assert at.selectbox(key="step.preset").value is None  # it applies, then waits for the next choice
+    assert at.selectbox(key="step.method").value == "bco-alpha"
+    assert at.selectbox(key="step.attention").value == "none"
+    assert at.selectbox(key="step.sampling").value == "iupe"
+    assert at.toggle(key="step.explore_labels").value and at.toggle(key="step.explore_rollouts").value
+    cfg = slot(at).run.config
+    assert (cfg.attention, cfg.sampling, cfg.explore_labels, cfg.explore_rollouts) == ("none", "iupe", True, True)
+    captions = " ".join(c.value for c in at.sidebar.caption)
+    assert "Table 6.2: Sampling + Exploration" in captions and "P = 0.943" in captions
+
+
+def test_url_params_set_the_widgets():
+    at = open_step_page(**{"step.method": "IUPE", "step.seed": "3", "step.explore_rollouts": "false",
+                           "step.eval_explore": "actions sampled from π"})
+    assert at.selectbox(key="step.method").value == "iupe"
+    assert at.number_input(key="step.seed").value == 3
+    assert at.toggle(key="step.explore_labels").value is True  # IUPE's own choice
+    assert at.toggle(key="step.explore_rollouts").value is False  # the link's
+    cfg = slot(at).run.config
+    assert (cfg.method, cfg.seed, cfg.explore_rollouts, cfg.eval_explore) == ("iupe", 3, False, True)
+
+
+def test_hide_removes_settings_and_panels_for_a_lesson():
+    at = open_step_page(hide="settings,diagram,idm", **{"step.method": "IUPE"})
+    assert not at.sidebar.selectbox and not at.sidebar.toggle  # no settings widgets
+    assert slot(at).run.config.method == "iupe"  # the link's settings still hold
+    at.button(key="step").click().run()
+    keys = chart_keys(at)
+    assert DIAGRAM not in keys and "panel.idm" not in keys and "panel.aer" in keys
+
+
+def test_autosave_writes_the_run_and_run_param_reopens_it(tmp_path):
+    from ifo.ui import storage
+
+    at = open_step_page()
+    user = at.query_params[storage.USER_PARAM]
+    user = user[0] if isinstance(user, list) else user
+    assert storage.valid_user(user)  # made and put in the URL
+    for _ in range(2):
+        at.button(key="step").click().run()
+    run_id = slot(at).run_id
+    saved = storage.list_runs(user)
+    assert [(r.run_id, r.iterations_done) for r in saved] == [(run_id, 2)]
+    assert str(saved[0].path).startswith(str(tmp_path / "runs"))
+    assert "BCO(α) on CartPole" in saved[0].label
+
+    again = open_step_page(user=user, run=run_id)  # as the run list opens it
+    assert not again.exception
+    assert counter(again) == "Iteration 2 of 10"
+    assert slot(again).run_id == run_id and len(records(again)) == 2
+    again.button(key="step").click().run()
+    assert counter(again) == "Iteration 3 of 10"
+    assert storage.list_runs(user)[0].iterations_done == 3
+
+
+def test_an_unknown_run_param_says_so_and_starts_fresh():
+    at = open_step_page(user="abcdef123456", run="cartpole-nope")
+    assert not at.exception
+    assert counter(at) == "Iteration 0 of 10"
+    assert any("Could not open" in t.value for t in at.toast)
+
+
+def test_rollout_video_on_demand(monkeypatch):
+    import ifo.video
+
+    monkeypatch.setattr(ifo.video, "MAX_FRAMES", 20)  # a short clip: this checks the wiring, not the film
+    at = open_step_page()
+    at.button(key="step").click().run()
+    assert len(at.get("video")) == 0  # nothing is rendered until asked
+    at.button(key="rollout").click().run()
+    assert not at.exception and not at.error
+    # the learner and the expert side by side (one film when they played frame for frame alike)
+    assert len(at.get("video")) == 2 or any("exactly as the expert" in s.value for s in at.success)
+    assert 1 in slot(at).videos  # cached for (this run, iteration 1)
+    at.run()
+    assert at.button(key="rollout").disabled and len(at.get("video")) >= 1
+
+
+# --------------------------------------------------------------------------- registry and diagram (no app)
+SYNTHETIC = {
+    "iteration": 3,
+    "idm": {"loss": 0.5, "train_accuracy": 0.8, "val_accuracy": 0.7, "train_size": 1400,
+            "prediction_counts": [30, 10, 40, 20], "mean_probabilities": [0.3, 0.1, 0.4, 0.2],
+            "true_counts": [25, 15, 35, 25], "expert_accuracy": 0.81},
+    "labels": {"counts": [28, 12, 40, 20], "sampled": True, "exploration_rate": 0.12, "accuracy": 0.75},
+    "policy": {"loss": 0.3, "agreement": 0.9, "expert_accuracy": 0.7},
+    "attention": {"grad_cam": {"maps": [[[0.0, 0.5], [1.0, 0.2]]] * 6, "actions": [0, 1, 2, 3, 0, 1],
+                               "probabilities": [[0.7, 0.1, 0.1, 0.1]] * 6, "raw_max": [1.0] * 6},
+                  "mean_image_distance": {"distance": [0.5, 0.4, 0.3, 0.2]}},
+    "rollouts": {"returns": [1.0] * 6 + [-1.0] * 4, "lengths": [9] * 10, "goals": [1] * 6 + [0] * 4,
+                 "win_probability": 0.6, "exploration_rate": 0.2, "transitions": 90},
+    "sampling": {"mode": "iupe", "from_pre": [100, 200, 50, 210], "from_pos": [10, 20, 30, 30], "size": 650},
+    "evaluation": {"aer": 0.42, "aer_std": 0.1, "performance": 0.5, "returns": [0.42], "goal_rate": 0.6,
+                   "mean_length": 9.0, "sampled_actions": False, "fidelity": 0.5, "random_reference": 0.1,
+                   "expert_reference": 0.97},
+    "seconds": {"idm": 0.1, "total": 0.5},
+}
+
+
+def _texts(fig) -> str:
+    return " ".join(a.text or "" for a in fig.layout.annotations) + " " + (fig.layout.title.text or "")
+
+
+def test_diagram_shows_the_sizes_and_highlights_a_phase():
+    from ifo.ui.diagram import ACTIVE, BOXES, loop_diagram
+
+    fig = loop_diagram(SYNTHETIC, "sampling", pre_size=1400, expert_size=100)
+    text = _texts(fig)
+    for expected in ("|I_pre| = 1,400", "|I_s| = 1,400", "|T_e| = 100", "|E| = 10 runs", "P(g|E) = 60%",
+                     "I_pre 560 + I_pos 90", "next |I_s| = 650", "I_pos 90", "now: sampling"):
+        assert expected in text, expected
+    filled = [s for s in fig.layout.shapes if s.fillcolor == ACTIVE]
+    assert len(filled) == 1 and len(fig.layout.shapes) == len(BOXES)
+    x, y, _ = BOXES["sampling"]
+    assert filled[0].x0 < x < filled[0].x1 and filled[0].y0 < y < filled[0].y1
+    assert not any(s.fillcolor == ACTIVE for s in loop_diagram(SYNTHETIC).layout.shapes)  # idle: no highlight
+    assert "before the first iteration" in _texts(loop_diagram(None))
+
+
+def test_registry_has_unique_keys_and_every_panel_draws():
+    from types import SimpleNamespace
+
+    from ifo.config import RunConfig
+    from ifo.envs import get_env
+    from ifo.methods import get_method
+    from ifo.ui.registry import PANELS, active_panels
+
+    keys = [p.key for p in PANELS]
+    assert len(keys) == len(set(keys))
+    assert all(p.title and p.explanation and p.thesis_figure and (p.draw or p.render) for p in PANELS)
+    maze = SimpleNamespace(spec=get_env("maze3"), method=get_method("iupe"),
+                           config=RunConfig(env="maze3", method="iupe", attention="features").resolved())
+    assert {"grad_cam", "action_distance", "exploration", "state_attention"} <= {p.key for p in active_panels(maze)}
+    for p in PANELS:
+        if p.draw is None:
+            continue
+        for records, it in (([], None), ([SYNTHETIC], None), ([SYNTHETIC], 3)):
+            fig = p.draw(records, maze, it)
+            assert fig is None or fig.layout.title.text, p.key
+
+
+def test_every_panel_draws_on_real_records(tiny_config):
+    from ifo.run import Run
+    from ifo.ui.registry import PANELS, active_panels
+
+    run = Run(tiny_config(method="iupe", attention="features"))
+    run.run(2)
+    shown = {p.key for p in active_panels(run)}
+    assert {"exploration", "state_attention", "sampling", "win"} <= shown and "grad_cam" not in shown
+    for p in PANELS:
+        if p.draw is not None and p.applies(run):
+            for it in (None, 1):
+                assert p.draw(run.records, run, it) is not None, p.key

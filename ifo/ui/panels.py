@@ -1,5 +1,9 @@
-"""Drawing helpers: a chart panel with its caption, the iteration counter, the metrics row."""
+"""Drawing helpers: a chart panel with its caption, the iteration counter, the metrics row,
+and the drawing of the registry's panels (`ifo.ui.registry`), the rollout video among them."""
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
 
 import plotly.graph_objects as go
 import streamlit as st
@@ -55,3 +59,92 @@ def metrics_row(records: list[dict]) -> None:
                    help="Share of evaluation episodes that reached the goal.")
     cols[3].metric("Seconds per iteration", _fmt(last["seconds"].get("total"), "{:.1f}"), delta_color="off",
                    help="Time the last iteration took to train and evaluate.")
+
+
+# --------------------------------------------------------------------------- the registry's panels
+@dataclass
+class PanelContext:
+    """What a custom panel (`Panel.render`) may use: the slot, its run and records, and the
+    iteration the slider shows (1-based)."""
+
+    slot: Any
+    run: Any
+    records: list
+    iteration: int | None
+
+
+def panel_caption(panel) -> None:
+    st.caption(f"{panel.explanation} *{panel.thesis_figure}.*")
+
+
+def draw_panels(panels, ctx: PanelContext, columns: int = 2) -> None:
+    """Lay the registry's panels out `columns` to a row (wide ones take a row), each with its caption."""
+    row: list = []
+
+    def flush():
+        if row:
+            for col, p in zip(st.columns(columns), row):
+                with col:
+                    _one(p, ctx)
+            row.clear()
+
+    for p in panels:
+        if p.wide:
+            flush()
+            _one(p, ctx)
+        else:
+            row.append(p)
+            if len(row) == columns:
+                flush()
+    flush()
+
+
+def _one(panel, ctx: PanelContext) -> None:
+    if panel.render is not None:
+        st.markdown(f"##### {panel.title}")
+        panel.render(ctx)
+        panel_caption(panel)
+        return
+    fig = panel.draw(ctx.records, ctx.run, ctx.iteration)
+    if fig is None:
+        return
+    st.plotly_chart(fig, key=f"panel.{panel.key}", config=CHART_CONFIG)
+    panel_caption(panel)
+
+
+def rollout_panel(ctx: PanelContext) -> None:
+    """The learner's rollout beside the expert's (same episode), rendered on demand and cached
+    per (run, iteration) in the slot: rendering and encoding take a few seconds."""
+    slot, run = ctx.slot, ctx.run
+    if run is None or not ctx.records:
+        st.info("Train an iteration first: then you can watch the policy play.")
+        return
+    latest = run.iteration
+    if st.button(f"Show a rollout of the current policy (iteration {latest})", key="rollout",
+                 icon=":material/movie:", disabled=latest in slot.videos):
+        with st.spinner("Playing one episode and encoding the video..."):
+            try:
+                slot.render_videos()
+            except Exception as e:  # a missing expert, no ffmpeg, ...
+                st.error(f"Could not make the video: {e}")
+    shown = ctx.iteration or latest
+    have = sorted(slot.videos)
+    if not have:
+        return
+    at = shown if shown in slot.videos else have[-1]
+    if at != shown:
+        st.caption(f"No rollout was recorded at iteration {shown}; showing iteration {at}.")
+    learner, expert = slot.videos[at], slot.expert_video()
+    left, right = st.columns(2)
+    with left:
+        st.markdown(f"**Learner after iteration {at}**: return {learner[1]:.2f} in {learner[2]} steps")
+        st.video(learner[0], autoplay=True, muted=True, loop=True)
+    with right:
+        if expert is None:
+            st.caption("No expert video: this environment has no shipped expert.")
+        elif expert[0] == learner[0]:  # frame for frame the same film (and one video element per content)
+            st.markdown(f"**Expert, same episode**: return {expert[1]:.2f} in {expert[2]} steps")
+            st.success("The learner played this episode exactly as the expert did.")
+        else:
+            st.markdown(f"**Expert, same episode**: return {expert[1]:.2f} in {expert[2]} steps")
+            st.video(expert[0], autoplay=True, muted=True, loop=True)

@@ -8,7 +8,14 @@ A page owns a `RunSlot` (named, so several pages can each keep their own run). T
 - advances at most one iteration per script run (`advance`), so a fragment that reruns
   every `tick` seconds while playing trains one iteration per rerun and the page stays
   usable between iterations;
-- shows the Run's `progress(phase, iteration)` callback as a progress bar.
+- shows the Run's `progress(phase, iteration)` callback as a progress bar over the run's
+  own `phases()` (so skipped phases do not make it jump), and tells the page which phase
+  is training (`on_phase`), so the loop diagram can highlight it;
+- autosaves the run after each iteration (`ifo.ui.storage.save_run`) under the page's
+  user (`?user=` in the URL) and a run id fixed for the run's life, and reopens a saved
+  run named by `?run=<run id>` (`open_from_url`);
+- caches rollout videos of the policy per iteration (`render_videos`), never in
+  st.cache_resource: a model belongs to one session.
 
 Clicks that arrive while an iteration trains are held back until the iteration ends (a
 Streamlit rerun request raised inside `Run.step()` would leave the run half-trained). A
@@ -31,7 +38,8 @@ from streamlit.runtime.scriptrunner_utils.exceptions import ScriptControlExcepti
 from ifo.config import RunConfig
 from ifo.envs import get_env
 from ifo.run import PHASES, Run, RunFinished
-from ifo.ui.settings import Choice, method_label
+from ifo.ui import storage
+from ifo.ui.settings import Choice, method_label, set_widgets
 
 log = logging.getLogger(__name__)
 
@@ -71,14 +79,22 @@ class SlotState:
     training: bool = False  # an iteration is training right now (maybe in another thread)
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)  # one iteration at a time
     notices: list[str] = field(default_factory=list)
+    run_id: str | None = None  # where the run autosaves (ifo.ui.storage)
+    user: str | None = None  # autosave under this user; None: no autosave
+    save_error: str | None = None
+    videos: dict = field(default_factory=dict)  # iteration -> (mp4 bytes, return, steps) of the learner
+    expert_videos: dict = field(default_factory=dict)  # (env, episode) -> (mp4 bytes, return, steps)
 
 
 class _ProgressBar:
     """The Run's progress callback, drawn into one placeholder. Streamlit raises its rerun/stop
     requests at st.* calls; inside Run.step() we hold them back and re-raise after the step."""
 
-    def __init__(self, area, run: Run):
+    def __init__(self, area, run: Run, on_phase=None):
         self.area, self.total = area, run.config.iterations
+        self.phases = run.phases()
+        self.on_phase = on_phase
+        self.done = 0.0
         self.deferred: BaseException | None = None
 
     def show(self, fn, *args, **kwargs) -> None:
@@ -90,10 +106,16 @@ class _ProgressBar:
             self.deferred = e
 
     def __call__(self, phase: str, iteration: int) -> None:
-        # ifo.run.PHASES lists every phase in order; a method skips some, so the bar may jump
-        done = PHASES.index(phase) / len(PHASES) if phase in PHASES else 0.0
-        text = f"Iteration {iteration} of {self.total}: {PHASE_TEXT.get(phase, phase)}"
-        self.show(self.area.progress, done, text=text)
+        # the run's own phases: a method that skips some does not jump; a phase that comes
+        # twice (the maze's attention probes) never moves the bar back
+        names = self.phases if phase in self.phases else list(PHASES)
+        self.done = max(self.done, names.index(phase) / len(names) if phase in names else 0.0)
+        step = names.index(phase) + 1 if phase in names else 0
+        text = (f"Iteration {iteration} of {self.total}, step {step} of {len(names)}: "
+                f"{PHASE_TEXT.get(phase, phase)}")
+        self.show(self.area.progress, self.done, text=text)
+        if self.on_phase is not None:
+            self.show(self.on_phase, phase, iteration)
 
 
 class RunSlot:
@@ -146,6 +168,7 @@ class RunSlot:
         previous = s.run
         s.reset_requested = s.playing = False
         s.run, s.identity, s.error, s.step_error, s.target = None, identity, None, None, 0
+        s.run_id, s.save_error, s.videos = storage.new_run_id(config), None, {}
         with st.spinner(f"Preparing a new run ({describe(config)}): loading the demonstrations "
                         "and collecting random transitions..."):
             try:
@@ -161,6 +184,89 @@ class RunSlot:
             s.notices.append(f"New run: {describe(config)}. The previous run "
                              f"({describe(previous.config)}, {previous.iteration} iterations) was discarded.")
         return s.run
+
+    def adopt(self, run: Run, run_id: str, key: str) -> None:
+        """Make a loaded run this slot's run, and point the settings widgets (`key`) at it, so
+        the next `ensure` keeps it."""
+        s = self.state
+        choice = Choice.from_config(run.config)
+        set_widgets(key, choice)
+        s.run, s.identity, s.run_id = run, _identity(choice.config()), run_id
+        s.error = s.step_error = s.save_error = None
+        s.target, s.playing, s.reset_requested, s.videos = run.iteration, False, False, {}
+
+    def open_from_url(self, key: str) -> None:
+        """If the URL names a saved run (`?run=<id>`) of this page's user that this slot does
+        not hold, load it (before the settings widgets are drawn)."""
+        s = self.state
+        run_id = st.query_params.get("run")
+        if not run_id or run_id == s.run_id or not storage.valid_user(s.user):
+            return
+        try:
+            path = storage.run_path(s.user, run_id)
+            if not (path / "LATEST").exists():
+                raise FileNotFoundError("it is not among your saved runs")
+            with st.spinner("Opening the saved run..."):
+                run = Run.load(path)
+        except Exception as e:  # a deleted run, a foreign link, an old format
+            log.warning("could not open run %r: %s", run_id, e)
+            s.notices.append(f"Could not open the saved run {run_id}: {e}")
+            del st.query_params["run"]
+            return
+        self.adopt(run, run_id, key)
+        s.notices.append(f"Opened the saved run {describe(run.config)} at iteration {run.iteration}.")
+
+    def sync_url(self) -> None:
+        """Keep `?run=` naming the current run once it is saved (reloading the page reopens it)."""
+        s = self.state
+        saved = s.run is not None and s.run.iteration > 0 and s.user is not None and s.save_error is None
+        if saved and st.query_params.get("run") != s.run_id:
+            st.query_params["run"] = s.run_id
+        elif not saved and "run" in st.query_params:
+            del st.query_params["run"]
+
+    def save(self) -> None:
+        s = self.state
+        if s.user is None or s.run is None or s.run_id is None:
+            return
+        try:
+            storage.save_run(s.run, s.user, s.run_id, label=describe(s.run.config))
+            s.save_error = None
+        except Exception as e:  # a full disk must not stop the lesson
+            log.exception("autosave failed")
+            s.save_error = f"Could not save the run: {e}"
+
+    @property
+    def run_id(self) -> str | None:
+        return self.state.run_id
+
+    # ------------------------------------------------------------------ videos
+    @property
+    def videos(self) -> dict:
+        return self.state.videos
+
+    def render_videos(self, episode: int = 0) -> None:
+        """Record the current policy (and the expert, once per environment) on evaluation episode
+        `episode`, as MP4, cached for this iteration."""
+        from ifo.video import expert_rollout_frames, frames_to_mp4, policy_rollout_frames
+
+        s, run = self.state, self.state.run
+        fps = 6 if run.spec.is_maze else 30
+        with s.lock:  # never while the run trains in another thread
+            frames, ret = policy_rollout_frames(run, episode)
+        s.videos[run.iteration] = (frames_to_mp4(frames, fps=fps), ret, len(frames) - 1)
+        ekey = (run.spec.name, episode)
+        if ekey not in s.expert_videos:
+            try:
+                frames, ret = expert_rollout_frames(run.spec.name, episode)
+                s.expert_videos[ekey] = (frames_to_mp4(frames, fps=fps), ret, len(frames) - 1)
+            except FileNotFoundError as e:  # no expert weights shipped for this task
+                log.warning("no expert video: %s", e)
+                s.expert_videos[ekey] = None
+
+    def expert_video(self, episode: int = 0):
+        run = self.state.run
+        return self.state.expert_videos.get((run.spec.name, episode)) if run is not None else None
 
     def describe(self) -> str:
         """A one-line name of the current run, e.g. "BCO(α) on CartPole, seed 0"."""
@@ -190,6 +296,11 @@ class RunSlot:
             s.playing, s.step_error = False, None
             s.target = min(self._base() + 1, s.run.config.iterations)
 
+    def request_run_to_end(self) -> None:
+        s = self.state
+        if s.run is not None:
+            self.request_run(s.run.config.iterations - self._base())
+
     def request_run(self, n: int) -> None:
         s = self.state
         if s.run is not None:
@@ -204,14 +315,15 @@ class RunSlot:
             s.target = self._base()
 
     # ------------------------------------------------------------------ training
-    def advance(self, area) -> bool:
+    def advance(self, area, on_phase=None) -> bool:
         """Train one iteration if the run is behind its target, showing progress in `area`
-        (an st.empty()). Returns True when this iteration ended a Run N, so the page can rerun
-        in full and stop the fragment's timer."""
+        (an st.empty()) and calling `on_phase(phase, iteration)` as each phase starts. Returns
+        True when this iteration ended a Run N, so the page can rerun in full and stop the
+        fragment's timer."""
         s = self.state
         if s.run is None:
             return False
-        bar = _ProgressBar(area, s.run)
+        bar = _ProgressBar(area, s.run, on_phase)
         # Streamlit starts a full rerun without waiting for a fragment run it cancels, so two
         # threads of this session can get here at once: one trains, the other waits for it.
         _acquire(s.lock, bar, area, "Finishing the iteration in progress...")
@@ -232,6 +344,8 @@ class RunSlot:
         try:
             run.progress = bar
             run.step()
+            run.progress = None
+            self.save()
         except RunFinished:
             s.playing = False
         except Exception as e:
@@ -259,3 +373,17 @@ def _acquire(lock, bar: _ProgressBar, area, message: str) -> None:
         bar.show(area.info, message)
     if bar.deferred is not None:
         raise bar.deferred
+
+
+def current_user() -> str:
+    """The page's user id from the URL (`?user=`), made and put in the URL when missing or invalid."""
+    user = st.query_params.get(storage.USER_PARAM)
+    if not storage.valid_user(user):
+        user = storage.new_user()
+        st.query_params[storage.USER_PARAM] = user
+    return user
+
+
+def hidden() -> set[str]:
+    """What a lesson hides: `?hide=settings,diagram,rollout` (controls, panels by registry key)."""
+    return {h.strip().lower() for h in st.query_params.get("hide", "").split(",") if h.strip()}
