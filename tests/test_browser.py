@@ -9,6 +9,7 @@ then turns exploration off and checks that a new run starts.
 import os
 import socket
 import subprocess
+import xml.etree.ElementTree as ET
 import sys
 import time
 import urllib.request
@@ -127,7 +128,7 @@ def test_step_through_iupe_on_cartpole(app_url, page):
 
     page.get_by_role("button", name="Show a rollout of the current policy").click()
     page.wait_for_selector(IDLE)
-    expect(page.locator("video")).not_to_have_count(0)
+    expect(page.locator("video")).not_to_have_count(0, timeout=60_000)
 
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     page.mouse.move(5, 5)  # no tooltip over the screenshot
@@ -137,6 +138,20 @@ def test_step_through_iupe_on_cartpole(app_url, page):
     page.wait_for_timeout(1500)  # let plotly relayout to the new size, the videos start
     page.screenshot(path=str(ARTIFACTS / "step_page.png"), full_page=True)
     page.set_viewport_size({"width": 1400, "height": 1000})
+
+    # export a chart for slides: rendered on the server by kaleido with Debian's chromium
+    for label, check in (("SVG", lambda b: ET.fromstring(b).tag.endswith("svg")),
+                         ("PNG", lambda b: b.startswith(b"\x89PNG\r\n\x1a\n"))):
+        button = page.locator("[data-testid='stDownloadButton']").filter(has_text=label).first
+        with page.expect_download(timeout=120_000) as download:
+            button.locator("button").first.click()
+        assert check(Path(download.value.path()).read_bytes()), f"the {label} download is not a valid {label}"
+
+    # reload: the autosaved run comes back from the link
+    page.reload()
+    page.wait_for_selector(IDLE)
+    expect(counter).to_have_text("Iteration 3 of 10")
+    expect(sidebar.get_by_role("combobox", name="Method")).to_have_value("IUPE")
 
     # a switch is part of the run: turning exploration of labels off starts a new run
     sidebar.get_by_text("Explore: sample the labels").click()

@@ -8,6 +8,8 @@ from typing import Any
 import plotly.graph_objects as go
 import streamlit as st
 
+from ifo.ui.export import chart_downloads, export_note, slide_pack_download
+
 # The chart's camera button downloads an SVG drawn by the browser: slides, no server work.
 CHART_CONFIG = {"toImageButtonOptions": {"format": "svg"}, "displaylogo": False}
 
@@ -88,6 +90,8 @@ def draw_panels(panels, ctx: PanelContext, columns: int = 2) -> None:
                     _one(p, ctx)
             row.clear()
 
+    if ctx.records:
+        export_note()  # once per page: says so when no Chromium can render the downloads
     for p in panels:
         if p.wide:
             flush()
@@ -97,6 +101,8 @@ def draw_panels(panels, ctx: PanelContext, columns: int = 2) -> None:
             if len(row) == columns:
                 flush()
     flush()
+    if ctx.records and ctx.run is not None:
+        slide_pack_download(ctx.records, ctx.run.config.to_dict(), ctx.run.spec.action_names, key="export.pack")
 
 
 def _one(panel, ctx: PanelContext) -> None:
@@ -110,6 +116,8 @@ def _one(panel, ctx: PanelContext) -> None:
         return
     st.plotly_chart(fig, key=f"panel.{panel.key}", config=CHART_CONFIG)
     panel_caption(panel)
+    if ctx.records:  # slide-ready SVG/PNG/PDF, rendered server-side only when clicked
+        chart_downloads(fig, panel.key, key=f"export.{panel.key}", note=False)
 
 
 def rollout_panel(ctx: PanelContext) -> None:
