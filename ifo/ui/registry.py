@@ -26,14 +26,6 @@ import plotly.graph_objects as go
 
 from ifo import figures
 
-# Names of the state variables, for attention over them (attention="features"). The
-# ifo library has no such table yet: see the report (it belongs in EnvSpec).
-FEATURE_NAMES = {
-    "cartpole": ("cart x", "cart v", "pole θ", "pole ω"),
-    "acrobot": ("cos θ1", "sin θ1", "cos θ2", "sin θ2", "ω1", "ω2"),
-    "mountaincar": ("position", "velocity"),
-    "lunarlander": ("x", "y", "vx", "vy", "angle", "ω", "left leg", "right leg"),
-}
 
 
 @dataclass(frozen=True)
@@ -140,7 +132,7 @@ PANELS: list[Panel] = [
           "How much weight the policy and the IDM give each state variable; the dotted line is what uniform "
           "attention would give.",
           draw=lambda records, run, it: figures.state_attention(
-              records, FEATURE_NAMES.get(run.spec.name, ()) if run is not None else (), iteration=it),
+              records, run.spec.feature_names if run is not None else (), iteration=it),
           applies=lambda run: run is not None and run.config.attention == "features"),
     Panel("rollout", "A rollout of the current policy", "Thesis Figs 4.1–4.5 (the environments), Fig 5.1",
           "The learner playing one episode beside the expert playing the same episode: what the numbers above "
