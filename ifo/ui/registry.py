@@ -27,7 +27,6 @@ import plotly.graph_objects as go
 from ifo import figures
 
 
-
 @dataclass(frozen=True)
 class Panel:
     key: str  # stable: the chart's widget key, the ?hide= name
