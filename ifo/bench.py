@@ -14,17 +14,11 @@ import numpy as np
 from ifo.config import RunConfig
 from ifo.envs import get_env
 from ifo.methods import METHODS
+from ifo.reproduce import mean_sd
 from ifo.run import Run
 
 BASELINE_METHODS = ("bc", "bco", "bco-alpha")
 QUICK = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2, expert_episodes=2)
-
-
-def _mean_sd(values) -> str:
-    values = [v for v in values if v is not None]
-    if not values:
-        return "n/a"
-    return f"{np.mean(values):.3f} ± {np.std(values):.3f}"
 
 
 def run_once(env: str, method: str, seed: int, iterations: int | None, quick: bool, **overrides) -> dict:
@@ -56,7 +50,7 @@ def bench_table(envs: list[str], seeds: int = 3, iterations: int | None = None, 
         alpha = results["bco-alpha"]
         row = [spec.thesis_name, f"{spec.random_return:.2f}" if spec.random_return is not None else "n/a",
                f"{spec.expert_return:.2f}" if spec.expert_return is not None else "n/a"]
-        row += [_mean_sd([r["performance"] for r in results[m]]) for m in BASELINE_METHODS]
+        row += [mean_sd([r["performance"] for r in results[m]]) for m in BASELINE_METHODS]
         row += [f"{np.mean([r['seconds_per_iteration'] for r in alpha]):.2f}",
                 f"{np.mean([r['aer'] for r in alpha]):.2f} ± {np.std([r['aer'] for r in alpha]):.2f}"]
         lines.append("| " + " | ".join(row) + " |")

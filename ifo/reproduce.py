@@ -117,7 +117,8 @@ def run_row(row: Row, env: str, seed: int, iterations: int | None, **extra) -> d
     return out
 
 
-def _cell(values: list) -> str:
+def mean_sd(values: list) -> str:
+    """'mean ± sd' over seeds for a table cell; one value as is; '—' when there is none."""
     values = [v for v in values if v is not None]
     if not values:
         return "—"
@@ -126,7 +127,7 @@ def _cell(values: list) -> str:
     return f"{np.mean(values):.3f} ± {np.std(values):.3f}"
 
 
-def _thesis(v) -> str:
+def number(v) -> str:
     return "—" if v is None else f"{v:.3f}"
 
 
@@ -147,7 +148,7 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
         for env in env_names:
             theirs = table.thesis.get(row.label, {}).get(env, (None, None))
             if row.method in NOT_IMPLEMENTED:
-                out.append(f"| {row.label} | {env} | not implemented | {_thesis(theirs[0])} | — | {_thesis(theirs[1])} "
+                out.append(f"| {row.label} | {env} | not implemented | {number(theirs[0])} | — | {number(theirs[1])} "
                            f"| — | — | |")
                 continue
             results = []
@@ -163,9 +164,9 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
                 mean = np.mean([r[metric] for r in results])
                 verdict = f"{metric} ≥ {threshold:g}: {'met' if mean >= threshold - 1e-9 else 'MISSED'}"
             out.append(
-                f"| {row.label} | {env} | {_cell([r['performance'] for r in results])} | {_thesis(theirs[0])} "
-                f"| {_cell([r['aer'] for r in results])} | {_thesis(theirs[1])} "
-                f"| {_cell([r.get('aer_sampled') for r in results])} "
+                f"| {row.label} | {env} | {mean_sd([r['performance'] for r in results])} | {number(theirs[0])} "
+                f"| {mean_sd([r['aer'] for r in results])} | {number(theirs[1])} "
+                f"| {mean_sd([r.get('aer_sampled') for r in results])} "
                 f"| {np.mean([r['seconds'] for r in results]):.0f} | {verdict} |")
     out += ["", f"Seeds: {seeds}. Iterations: {'per-environment defaults' if iterations is None else iterations}. "
             "P and AER at the last iteration over 100 evaluation episodes (MAP actions; held-out seeds, or "

@@ -12,7 +12,7 @@ import numpy as np
 from ifo.config import RunConfig
 from ifo.envs import get_env
 from ifo.methods import get_method
-from ifo.reproduce import NOT_IMPLEMENTED, TABLES
+from ifo.reproduce import NOT_IMPLEMENTED, TABLES, mean_sd, number
 from ifo.ui.settings import fast_overrides
 
 COMPONENTS = ("attention", "sampling", "explore_labels", "explore_rollouts")
@@ -124,19 +124,6 @@ def preset_configs(table_id: str, env: str | None = None, iterations: int | None
     return out
 
 
-def _mean_sd(values: list) -> str:
-    values = [v for v in values if v is not None]
-    if not values:
-        return "—"
-    if len(values) == 1:
-        return f"{values[0]:.3f}"
-    return f"{np.mean(values):.3f} ± {np.std(values):.3f}"
-
-
-def _num(v) -> str:
-    return "—" if v is None else f"{v:.3f}"
-
-
 def summary_rows(entries: list[dict]) -> list[dict]:
     """The thesis's layout: one row per configuration, P and AER ours (mean ± sd over its seeds, at
     each seed's latest iteration) beside the thesis's numbers.
@@ -157,10 +144,10 @@ def summary_rows(entries: list[dict]) -> list[dict]:
             "configuration": group,
             "seeds": status,
             "iteration": "—" if not its else (str(its[0]) if len(its) == 1 else f"{its[0]}–{its[-1]}"),
-            "P (ours)": _mean_sd([ev.get("performance") for ev in lasts]),
-            "P (thesis)": _num(thesis[0]) if thesis else "—",
-            "AER (ours)": _mean_sd([ev.get("aer") for ev in lasts]),
-            "AER (thesis)": _num(thesis[1]) if thesis else "—",
+            "P (ours)": mean_sd([ev.get("performance") for ev in lasts]),
+            "P (thesis)": number(thesis[0]) if thesis else "—",
+            "AER (ours)": mean_sd([ev.get("aer") for ev in lasts]),
+            "AER (thesis)": number(thesis[1]) if thesis else "—",
             "thesis source": thesis[2] if thesis and len(thesis) > 2 else "",
         })
     return rows
