@@ -78,3 +78,33 @@ def speed_table(cases=(("cartpole", "iupe"), ("maze5", "iupe"), ("cartpole", "bc
                      + " | ".join(f"{med(p):.2f}" for p in phases) + " |")
     lines += ["", f"{iterations} iterations each, default settings, torch threads: 1."]
     return "\n".join(lines)
+
+
+def export_table(run_dir: str | None = None, log=lambda msg: print(msg, file=sys.stderr)) -> str:
+    """Server-side export speed: browser start, then seconds per figure and format, and a slide pack."""
+    from ifo import export
+
+    if run_dir is None:
+        run = Run(RunConfig(env="cartpole", method="iupe", iterations=2, **QUICK))
+        run.run()
+        records, config, names = run.records, run.config.to_dict(), run.spec.action_names
+    else:
+        records, config, names = export.load_run_files(run_dir)
+    figs = export.run_figures(records, names)
+    start = time.perf_counter()
+    export.figure_bytes(next(iter(figs.values())), "svg")  # starts the browser
+    lines = [f"browser start and first figure: {time.perf_counter() - start:.2f} s", "",
+             "| format | figures | median s per figure | max s |", "|---|---|---|---|"]
+    for fmt in export.FORMATS:
+        times = []
+        for fig in figs.values():
+            t = time.perf_counter()
+            export.figure_bytes(fig, fmt)
+            times.append(time.perf_counter() - t)
+        log(f"{fmt}: {np.median(times):.2f} s per figure")
+        lines.append(f"| {fmt} | {len(times)} | {np.median(times):.2f} | {max(times):.2f} |")
+    t = time.perf_counter()
+    size = len(export.slide_pack(records, config, names))
+    lines += ["", f"slide pack ({len(figs)} figures × {len(export.FORMATS)} formats, {size / 2**20:.1f} MiB): "
+              f"{time.perf_counter() - t:.2f} s"]
+    return "\n".join(lines)

@@ -155,6 +155,10 @@ def cmd_bench(a: argparse.Namespace) -> int:
         envs = a.envs.split(",") if a.envs else None
         extra = {"maze_eval_layouts": a.maze_eval_layouts} if a.maze_eval_layouts else {}
         text = reproduce(a.table, a.seeds, envs, a.iterations, **extra)
+    elif a.what == "export":
+        from ifo.bench import export_table
+
+        text = export_table()
     elif a.what == "speed":
         from ifo.bench import speed_table
 
@@ -222,9 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_demos_check)
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
-    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "speed"], default="baselines",
+    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "speed", "export"], default="baselines",
                    help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
-                        "table; speed: seconds per iteration and per phase")
+                        "table; speed: seconds per iteration and per phase; export: server-side figure export speed")
     p.add_argument("--table", choices=["5.1", "5.2", "6.1", "6.2"], help="which thesis table to reproduce")
     p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
     p.add_argument("--out", help="also write the table (and the command that made it) to this file")
