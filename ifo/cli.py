@@ -154,7 +154,13 @@ def cmd_bench(a: argparse.Namespace) -> int:
             raise CliError("bench reproduce needs --table (5.1, 5.2, 6.1 or 6.2)")
         envs = a.envs.split(",") if a.envs else None
         extra = {"maze_eval_layouts": a.maze_eval_layouts} if a.maze_eval_layouts else {}
+        if a.deadlock_guard:
+            extra["deadlock_guard"] = True
         text = reproduce(a.table, a.seeds, envs, a.iterations, **extra)
+    elif a.what == "vanishing":
+        from ifo.bench import vanishing_table
+
+        text = vanishing_table(a.seeds)
     elif a.what == "export":
         from ifo.bench import export_table
 
@@ -226,15 +232,20 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_demos_check)
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
-    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "speed", "export"], default="baselines",
+    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "speed", "export", "vanishing"],
+                   default="baselines",
                    help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
-                        "table; speed: seconds per iteration and per phase; export: server-side figure export speed")
+                        "table; speed: seconds per iteration and per phase; export: server-side figure export speed; "
+                        "vanishing: BCO(α) against IUPE on CartPole with a small I_pre")
     p.add_argument("--table", choices=["5.1", "5.2", "6.1", "6.2"], help="which thesis table to reproduce")
     p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
     p.add_argument("--out", help="also write the table (and the command that made it) to this file")
     p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"],
                    help="reproduce: evaluate mazes on held-out layouts (default) or on the demonstrations' layouts "
                         "(the thesis authors' protocol)")
+    p.add_argument("--deadlock-guard", action="store_true",
+                   help="reproduce: maze evaluation ends an episode on the 4th visit to a cell with return -1 "
+                        "(the thesis authors' evaluation)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")

@@ -131,6 +131,15 @@ def number(v) -> str:
     return "—" if v is None else f"{v:.3f}"
 
 
+def _protocol(extra: dict) -> str:
+    """How the evaluation episodes were chosen, in words, for the table's footnote."""
+    layouts = ("the demonstrations' maze layouts" if extra.get("maze_eval_layouts") == "demonstration"
+               else "held-out maze layouts")
+    guard = (", an episode ending with return −1 on the 4th visit to a cell (deadlock guard)"
+             if extra.get("deadlock_guard") else "")
+    return f"held-out seeds for the vector tasks, {layouts}{guard}"
+
+
 def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iterations: int | None = None,
               log=lambda m: print(m, file=sys.stderr, flush=True), **extra) -> str:
     if table_id not in TABLES:
@@ -169,7 +178,6 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
                 f"| {mean_sd([r.get('aer_sampled') for r in results])} "
                 f"| {np.mean([r['seconds'] for r in results]):.0f} | {verdict} |")
     out += ["", f"Seeds: {seeds}. Iterations: {'per-environment defaults' if iterations is None else iterations}. "
-            "P and AER at the last iteration over 100 evaluation episodes (MAP actions; held-out seeds, or "
-            "held-out maze layouts). ILPO is not implemented yet. The thesis's BCO rows are compared with our "
-            "BCO(α)."]
+            f"P and AER at the last iteration over 100 evaluation episodes (MAP actions; {_protocol(extra)}). "
+            "ILPO is not implemented yet. The thesis's BCO rows are compared with our BCO(α)."]
     return "\n".join(out)

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from ifo.components.exploration import choose, exploration_rate
-from ifo.components.learning import fit, predict_proba
+from ifo.components.learning import fit, make_optimizer, predict_proba
 from ifo.components.sampling import build_training_set
 from ifo.config import RunConfig
 from ifo.data.demos import Demonstrations, load_demonstrations
@@ -44,6 +44,7 @@ from ifo.probes import action_mean_image_distances, grad_cam_probe_record
 
 Progress = Callable[[str, int], None]  # (phase name, iteration) -> None
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes: the same seeds (or maze layouts) for every run
+DEMONSTRATION_LAYOUTS = 100  # the shipped maze demonstrations come from the training pool's first 100 layouts
 PHASES = ("idm", "label", "policy", "attention", "rollout", "sampling", "evaluate")
 
 
@@ -69,7 +70,11 @@ class Run:
         self.progress = progress
         torch.manual_seed(cfg.seed)
         maze = {"obs_mode": cfg.obs_mode, "image_size": cfg.image_size} if self.spec.is_maze else None
-        # training runs (I_pre, I_pos) on training layouts; evaluation on held-out ones
+        # Maze worlds. Held-out: training runs (I_pre, I_pos) on the training layouts, evaluation on
+        # layouts never seen. Demonstration (the thesis authors' world): the demonstrations' layouts
+        # are the only ones, for I_pre, training runs and evaluation alike.
+        if maze and cfg.maze_eval_layouts == "demonstration":
+            maze["n_layouts"] = DEMONSTRATION_LAYOUTS
         self.pool = EnvPool(self.spec, **maze, split="train", max_steps=cfg.rollout_max_steps) if maze else EnvPool(self.spec)
         eval_split = "eval" if cfg.maze_eval_layouts == "held-out" else "train"
         self.eval_pool = (EnvPool(self.spec, **maze, split=eval_split, deadlock_guard=cfg.deadlock_guard) if maze
@@ -98,10 +103,10 @@ class Run:
             self.train_set = self.pre.train
             self.idm = InverseDynamics(obs_shape, self.spec.n_actions, cfg.hidden, cfg.attention)
             self.idm.fit_input_scaling(*map(torch.as_tensor, (self.pre.train.states, self.pre.train.next_states)))
-            self.idm_optimizer = torch.optim.Adam(self.idm.parameters(), lr=cfg.lr)
+            self.idm_optimizer = make_optimizer(self.idm, cfg.lr)
         self.policy = Policy(obs_shape, self.spec.n_actions, cfg.hidden, cfg.attention)
         self.policy.fit_input_scaling(torch.as_tensor(self.expert.states))
-        self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=cfg.lr)
+        self.policy_optimizer = make_optimizer(self.policy, cfg.lr)
         self.records: list[dict] = []
         self.last_rollouts: Rollouts | None = None
         self.last_evaluation: Rollouts | None = None
@@ -240,8 +245,11 @@ class Run:
                                   "goals": ro.goals.astype(int).tolist(), "win_probability": win,
                                   "exploration_rate": ro.exploration_rate, "transitions": len(ro.actions)}
             with self._phase("sampling", seconds):  # I_s for the next iteration
-                pos = Transitions(ro.states, ro.actions, ro.next_states)
-                self.train_set, mixture = build_training_set(cfg.sampling, self.pre.train, pos, ro.successful(),
+                pos, successful = Transitions(ro.states, ro.actions, ro.next_states), ro.successful()
+                if self.spec.is_maze:  # as for I_pre: drop moves into walls (nothing to learn from)
+                    moved = pos.moved()
+                    pos, successful = pos.subset(np.flatnonzero(moved)), successful[moved]
+                self.train_set, mixture = build_training_set(cfg.sampling, self.pre.train, pos, successful,
                                                              win, n_actions, rng)
             record["sampling"] = {"mode": cfg.sampling, **mixture.as_record()}
             if probe_images and hidden is not None:

@@ -373,3 +373,17 @@ def test_skipping_cycles_gives_exactly_the_returns_of_stepping_to_the_limit():
     np.testing.assert_array_equal(fast.lengths, full.lengths)
     np.testing.assert_array_equal(fast.goals, full.goals)
     assert (full.lengths == 300).any() and len(fast.actions) < len(full.actions)
+
+
+def test_a_fixed_world_of_the_first_n_layouts():
+    full = layout_pool(5, "train")
+    env = MazeEnv(5, split="train", obs_mode="vector", n_layouts=100)
+    assert len(env.pool) == 100
+    seen = set()
+    for seed in (0, 99, 100, 12_345, 1_000_000):  # any seed lands on one of the 100
+        env.reset(seed=seed)
+        assert any(np.array_equal(env.layout, full[k]) for k in range(100))
+        seen.add(env.layout_index)
+    assert seen <= set(range(100))
+    with pytest.raises(ValueError, match="n_layouts"):
+        MazeEnv(5, n_layouts=0)

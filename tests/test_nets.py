@@ -75,3 +75,24 @@ def test_image_models_encode_both_frames_with_the_same_weights():
     assert len(attn) == 2  # after the first two stages
     plain = InverseDynamics((32, 32, 3), 4, attention="none")
     assert not [m for m in plain.modules() if isinstance(m, SelfAttention2d)]
+
+
+@pytest.mark.parametrize("obs_shape", [(4,), (16, 16, 3)])
+def test_the_faster_optimizer_gives_the_same_weights_as_adams_plain_loop(obs_shape):
+    import numpy as np
+
+    from ifo.components.learning import fit, make_optimizer
+
+    rng = np.random.default_rng(0)
+    if len(obs_shape) == 1:
+        s = rng.normal(size=(300, *obs_shape)).astype(np.float32)
+    else:
+        s = rng.integers(0, 256, size=(300, *obs_shape), dtype=np.uint8)
+    actions = rng.integers(0, 2, size=300)
+    weights = []
+    for make in (make_optimizer, lambda m, lr: torch.optim.Adam(m.parameters(), lr=lr, foreach=False)):
+        torch.manual_seed(0)
+        policy = Policy(obs_shape, 2, attention="gated")  # images: SAGAN
+        fit(policy, policy, make(policy, 1e-3), [s], actions, 2, 64, torch.Generator().manual_seed(0))
+        weights.append(torch.cat([p.detach().flatten() for p in policy.parameters()]))
+    assert torch.equal(*weights)

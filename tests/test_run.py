@@ -175,3 +175,21 @@ def test_the_number_of_iterations_can_grow_but_not_below_what_is_done(tiny_confi
     with pytest.raises(ValueError, match="single pass"):
         Run(tiny_config(method="bco")).set_iterations(4)
 
+
+
+def _layout_keys(pool):
+    return {layout.tobytes() for layout in pool.envs(1)[0].pool}
+
+
+@pytest.mark.parametrize("protocol", ["held-out", "demonstration"])
+def test_maze_worlds_keep_evaluation_layouts_where_the_protocol_says(protocol):
+    from ifo.envs.maze import layout_pool
+
+    run = Run(RunConfig(env="maze5", method="iupe", pre_size=200, iterations=1, eval_episodes=5,
+                        maze_eval_layouts=protocol, attention_probes=False))
+    training, evaluation = _layout_keys(run.pool), _layout_keys(run.eval_pool)
+    demonstration_layouts = {layout.tobytes() for layout in layout_pool(5, "train")[:100]}
+    if protocol == "held-out":  # never trained on, never demonstrated
+        assert not training & evaluation and not evaluation & demonstration_layouts
+    else:  # the thesis authors' world: the demonstrations' 100 layouts, for everything
+        assert training == evaluation == demonstration_layouts

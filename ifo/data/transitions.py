@@ -27,6 +27,12 @@ class Transitions:
                            np.concatenate([p.actions for p in parts]),
                            np.concatenate([p.next_states for p in parts]))
 
+    def moved(self) -> np.ndarray:
+        """Mask of the transitions whose state changed. In the maze a move into a wall leaves the
+        frame as it was: such a pair carries no information about which action was taken."""
+        n = len(self)
+        return (self.states.reshape(n, -1) != self.next_states.reshape(n, -1)).any(1)
+
     def counts(self, n_actions: int) -> np.ndarray:
         return np.bincount(self.actions, minlength=n_actions)
 
@@ -69,8 +75,7 @@ def collect_random_transitions(pool: EnvPool, n_actions: int, size: int, per_act
         ro = run_episodes(pool, act, seeds)
         part = Transitions(ro.states, ro.actions, ro.next_states)
         if drop_unchanged:
-            moved = (part.states.reshape(len(part), -1) != part.next_states.reshape(len(part), -1)).any(1)
-            part = part.subset(np.flatnonzero(moved))
+            part = part.subset(np.flatnonzero(part.moved()))
         parts.append(part)
         counts += part.counts(n_actions)
         batch += 1

@@ -327,7 +327,8 @@ class MazeEnv(gym.Env):
     """Gym-Maze with layouts drawn from a train or eval pool.
 
     Reward +1 and termination at the goal, -0.1/(size*size) for every other step,
-    truncation after max_steps. deadlock_guard=True reproduces the authors' evaluation:
+    truncation after max_steps. `n_layouts` keeps only the split's first n layouts.
+    deadlock_guard=True reproduces the authors' evaluation:
     the 4th visit to any cell (bumping into a wall counts as a visit) ends the episode
     with a total return of exactly -1.
     """
@@ -335,7 +336,8 @@ class MazeEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, size: int = 5, split: str = "train", obs_mode: str = "image", image_size: int = 64,
-                 max_steps: int = 1000, deadlock_guard: bool = False, render_mode: str | None = "rgb_array"):
+                 max_steps: int = 1000, deadlock_guard: bool = False, render_mode: str | None = "rgb_array",
+                 n_layouts: int | None = None):
         if obs_mode not in ("image", "vector"):
             raise ValueError(f"obs_mode must be 'image' or 'vector', got {obs_mode!r}")
         if render_mode not in (None, "rgb_array"):
@@ -343,6 +345,10 @@ class MazeEnv(gym.Env):
         self.size = int(size)
         self.split = split
         self.pool = layout_pool(self.size, split)
+        if n_layouts is not None:  # a fixed world of the split's first n layouts (the authors had 100)
+            if n_layouts < 1:
+                raise ValueError(f"n_layouts must be >= 1, got {n_layouts}")
+            self.pool = self.pool[:n_layouts]
         self.obs_mode = obs_mode
         self.image_size = int(image_size)
         self.max_steps = int(max_steps)
