@@ -156,6 +156,8 @@ def cmd_bench(a: argparse.Namespace) -> int:
         extra = {"maze_eval_layouts": a.maze_eval_layouts} if a.maze_eval_layouts else {}
         if a.deadlock_guard:
             extra["deadlock_guard"] = True
+        if a.expert_episodes:
+            extra["expert_episodes"] = a.expert_episodes
         text = reproduce(a.table, a.seeds, envs, a.iterations, **extra)
     elif a.what == "vanishing":
         from ifo.bench import vanishing_table
@@ -246,6 +248,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deadlock-guard", action="store_true",
                    help="reproduce: maze evaluation ends an episode on the 4th visit to a cell with return -1 "
                         "(the thesis authors' evaluation)")
+    p.add_argument("--expert-episodes", type=int,
+                   help="reproduce: how many demonstrations every method gets (default: per env; the shipped "
+                        "5×5 and 10×10 maze demonstrations hold 1,000, one per training layout)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")

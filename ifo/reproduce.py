@@ -137,7 +137,8 @@ def _protocol(extra: dict) -> str:
                else "held-out maze layouts")
     guard = (", an episode ending with return −1 on the 4th visit to a cell (deadlock guard)"
              if extra.get("deadlock_guard") else "")
-    return f"held-out seeds for the vector tasks, {layouts}{guard}"
+    demos = f"; {extra['expert_episodes']} demonstrations" if extra.get("expert_episodes") else ""
+    return f"held-out seeds for the vector tasks, {layouts}{guard}{demos}"
 
 
 def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iterations: int | None = None,

@@ -83,7 +83,7 @@ class Run:
         # T_e: expert state pairs. The true actions stay inside `self.demos.hidden_actions`.
         if demos is None:
             demos = (load_demonstrations(cfg.demos, self.spec, self._obs_shape(), require_actions=not self.method.uses_idm)
-                     if cfg.demos else load_shipped_demonstrations(self.spec, cfg.obs_mode, cfg.image_size))
+                     if cfg.demos else load_shipped_demonstrations(self.spec, cfg.obs_mode, cfg.image_size, cfg.expert_episodes))
         if not self.method.uses_idm and demos.hidden_actions is None:
             raise ValueError("BC learns from the expert's actions, and these demonstrations have none")
         self.demos = demos.first_episodes(cfg.expert_episodes)
@@ -195,6 +195,10 @@ class Run:
             with self._phase("label", seconds):  # a_hat for the expert's pairs
                 probs = predict_proba(self.idm, self.idm, [t_e.states, t_e.next_states])
                 labels, map_labels = choose(probs, cfg.explore_labels, rng)
+                # exploration: a fresh draw for each pass of the policy over T_e, so one unlucky
+                # draw is not memorised for the whole iteration (the authors' code made one pass)
+                targets = (np.stack([labels] + [choose(probs, True, rng)[0] for _ in range(cfg.policy_epochs - 1)])
+                           if cfg.explore_labels else labels)
             record["idm"] = {
                 "loss": idm_fit.loss, "train_accuracy": idm_fit.accuracy,
                 "val_accuracy": float(np.mean(val_probs.argmax(-1) == val.actions)) if len(val) else None,
@@ -204,21 +208,22 @@ class Run:
             }
             record["labels"] = {"counts": np.bincount(labels, minlength=n_actions).tolist(),
                                 "sampled": bool(cfg.explore_labels),
-                                "exploration_rate": exploration_rate(labels, map_labels)}
+                                "exploration_rate": exploration_rate(np.ravel(targets),
+                                                                     np.resize(map_labels, np.size(targets)))}
             if hidden is not None:
                 record["idm"]["true_counts"] = np.bincount(hidden, minlength=n_actions).tolist()
                 record["idm"]["expert_accuracy"] = float(np.mean(map_labels == hidden))
-                record["labels"]["accuracy"] = float(np.mean(labels == hidden))
+                record["labels"]["accuracy"] = float(np.mean(targets == hidden))
                 record["idm"]["confusion"] = np.bincount(hidden * n_actions + map_labels,
                                                          minlength=n_actions ** 2).reshape(n_actions, -1).tolist()
             att = feature_attention_map(self.idm)
             if att is not None:
                 record["idm"]["attention"] = att.tolist()
         else:
-            labels = hidden  # BC: the supervised reference learns from the true actions
+            labels = targets = hidden  # BC: the supervised reference learns from the true actions
 
         with self._phase("policy", seconds):  # Eq 5.2 on (s_e, a_hat)
-            pol_fit = fit(self.policy, self.policy, self.policy_optimizer, [t_e.states], labels,
+            pol_fit = fit(self.policy, self.policy, self.policy_optimizer, [t_e.states], targets,
                           cfg.policy_epochs, cfg.batch_size, gen)
             pol_probs = predict_proba(self.policy, self.policy, [t_e.states])
         record["policy"] = {"loss": pol_fit.loss, "agreement": float(np.mean(pol_probs.argmax(-1) == labels))}

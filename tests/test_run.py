@@ -193,3 +193,35 @@ def test_maze_worlds_keep_evaluation_layouts_where_the_protocol_says(protocol):
         assert not training & evaluation and not evaluation & demonstration_layouts
     else:  # the thesis authors' world: the demonstrations' 100 layouts, for everything
         assert training == evaluation == demonstration_layouts
+
+
+@pytest.mark.parametrize("explore_labels", [True, False])
+def test_exploring_labels_draws_them_afresh_for_every_pass_over_the_demonstrations(
+        tiny_config, monkeypatch, explore_labels):
+    given = []
+    real_fit = run_mod.fit
+
+    def spy(forward, module, optimizer, inputs, targets, *args, **kwargs):
+        if module is run.policy:
+            given.append(np.asarray(targets))
+        return real_fit(forward, module, optimizer, inputs, targets, *args, **kwargs)
+
+    monkeypatch.setattr(run_mod, "fit", spy)
+    run = Run(tiny_config(method="iupe", policy_epochs=3, pre_size=300, explore_labels=explore_labels))
+    record = run.step()
+    (targets,) = given
+    if explore_labels:  # one draw per epoch: the policy is not fitted to one unlucky draw 3 times
+        assert targets.shape == (3, len(run.expert)) and not (targets[0] == targets[1:]).all()
+        assert record["labels"]["exploration_rate"] > 0
+    else:  # MAP labels: the same every epoch
+        assert targets.shape == (len(run.expert),) and record["labels"]["exploration_rate"] == 0
+
+
+def test_fit_refuses_a_label_set_per_epoch_that_does_not_match_the_epochs():
+    from ifo.components.learning import fit, make_optimizer
+    from ifo.nets import Policy
+
+    policy = Policy((4,), 2)
+    with pytest.raises(ValueError, match="rows of targets"):
+        fit(policy, policy, make_optimizer(policy, 1e-3), [np.zeros((8, 4), np.float32)],
+            np.zeros((2, 8), int), 3, 4, torch.Generator())

@@ -33,14 +33,22 @@ def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimi
         inputs: Sequence[np.ndarray], targets: np.ndarray, epochs: int, batch_size: int,
         generator: torch.Generator, class_weights: np.ndarray | None = None,
         grad_clip: float | None = None) -> FitResult:
-    """Train `forward(*inputs) -> logits` on integer `targets`; returns the last epoch's mean loss/accuracy."""
+    """Train `forward(*inputs) -> logits` on integer `targets`; returns the last epoch's mean loss/accuracy.
+
+    `targets` is one label per sample, or one row of labels per epoch (epochs x samples):
+    labels drawn afresh for each pass, as exploration draws them from the IDM's softmax.
+    """
     module.train()
     xs = [as_tensor(x) for x in inputs]
-    y = torch.as_tensor(targets, dtype=torch.long)
+    per_epoch = torch.as_tensor(targets, dtype=torch.long)
+    if per_epoch.ndim == 1:
+        per_epoch = per_epoch.expand(max(1, epochs), -1)
+    elif len(per_epoch) != max(1, epochs):
+        raise ValueError(f"{len(per_epoch)} rows of targets for {epochs} epochs")
     weight = None if class_weights is None else torch.as_tensor(class_weights, dtype=torch.float32)
-    n = len(y)
+    n = per_epoch.shape[1]
     loss_sum = correct = 0.0
-    for _ in range(max(1, epochs)):
+    for y in per_epoch:
         loss_sum = correct = 0.0
         order = torch.randperm(n, generator=generator)
         for start in range(0, n, batch_size):

@@ -13,7 +13,9 @@ from ifo.data.demos import (DemoError, Demonstrations, ExpertTransitions, load_d
 from ifo.envs import EnvSpec
 
 
-def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_size: int = 32) -> Demonstrations:
+def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_size: int = 32,
+                                episodes: int | None = None) -> Demonstrations:
+    """The shipped demonstrations; maze frames are drawn for the first `episodes` only (all if None)."""
     path = shipped_demos_path(spec)
     if not path.exists():
         raise DemoError(f"no shipped demonstrations at {path}; make them with "
@@ -23,10 +25,11 @@ def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_si
         shape = tuple(env.observation_space.shape)
         env.close()
         return load_demonstrations(path, spec, shape, actions_path=shipped_actions_path(spec))
-    return load_maze_demonstrations(spec, obs_mode, image_size)
+    return load_maze_demonstrations(spec, obs_mode, image_size, episodes)
 
 
-def load_maze_demonstrations(spec: EnvSpec, obs_mode: str, image_size: int) -> Demonstrations:
+def load_maze_demonstrations(spec: EnvSpec, obs_mode: str, image_size: int,
+                             episodes: int | None = None) -> Demonstrations:
     from ifo.envs.maze import observation
 
     with np.load(shipped_demos_path(spec), allow_pickle=False) as data:
@@ -39,6 +42,11 @@ def load_maze_demonstrations(spec: EnvSpec, obs_mode: str, image_size: int) -> D
         with np.load(actions_file, allow_pickle=False) as data:
             actions = data["actions"].astype(np.int64)
     episode = np.cumsum(starts) - 1
+    if episodes is not None:  # drawing frames is the slow part: only the episodes a run uses
+        keep = episode < episodes
+        episode, positions, next_positions, rewards = episode[keep], positions[keep], next_positions[keep], rewards[keep]
+        actions = None if actions is None else actions[keep]
+        episode_layout = episode_layout[:episodes]
     layout_of = layouts[episode_layout[episode]]
     states = np.stack([observation(l, p, obs_mode, image_size) for l, p in zip(layout_of, positions)])
     next_states = np.stack([observation(l, p, obs_mode, image_size) for l, p in zip(layout_of, next_positions)])
