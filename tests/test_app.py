@@ -390,3 +390,17 @@ def test_every_panel_draws_on_real_records(tiny_config):
         if p.draw is not None and p.applies(run):
             for it in (None, 1):
                 assert p.draw(run.records, run, it) is not None, p.key
+
+
+def test_maze_runs_can_be_judged_as_the_thesis_did():
+    at = open_step_page()
+    assert not [r for r in at.sidebar.radio if r.key == "step.maze_eval_layouts"]  # CartPole: no maze options
+    at = open_step_page(**{"step.env": "Maze 3x3", "step.maze_eval_layouts": "the demonstrations' layouts (thesis)",
+                           "step.deadlock_guard": "true"})
+    assert at.radio(key="step.maze_eval_layouts").value == "demonstration"
+    assert at.toggle(key="step.deadlock_guard").value is True
+    cfg = slot(at).run.config
+    assert (cfg.env, cfg.maze_eval_layouts, cfg.deadlock_guard) == ("maze3", "demonstration", True)
+    at.radio(key="step.maze_eval_layouts").set_value("held-out").run()  # a new run, judged on held-out layouts
+    assert not at.exception
+    assert slot(at).run.config.maze_eval_layouts == "held-out"

@@ -32,6 +32,7 @@ ATTENTION_LABELS = {"none": "off", "gated": "on (gated, as in the thesis)", "fea
 SAMPLING_LABELS = {"none": "none: I_s = I_pos (BCO(α))", "abco": "ABCO, partial (Eqs 5.3–5.5)",
                    "abco-whole": "ABCO, whole (Table 5.2)", "iupe": "IUPE (Sec 6.1)"}
 EVAL_LABELS = {False: "MAP actions (the most likely)", True: "actions sampled from π"}
+MAZE_EVAL_LABELS = {"held-out": "100 layouts it never saw", "demonstration": "the demonstrations' layouts (thesis)"}
 
 
 def fast_overrides() -> dict:
@@ -109,6 +110,8 @@ class Choice:
     explore_labels: bool | None = None
     explore_rollouts: bool | None = None
     eval_explore: bool = False
+    maze_eval_layouts: str = "held-out"  # maze only
+    deadlock_guard: bool = False  # maze only
 
     def config(self) -> RunConfig:
         """The resolved configuration; raises ValueError with a plain message if a value is impossible."""
@@ -117,7 +120,10 @@ class Choice:
     @classmethod
     def from_config(cls, config: RunConfig) -> "Choice":
         return cls(config.env, config.method, config.seed, config.iterations,
-                   **{k: getattr(config, k) for k in (*SWITCHES, "eval_explore")})
+                   **{k: getattr(config, k) for k in (*SWITCHES, "eval_explore", *MAZE_FIELDS)})
+
+
+MAZE_FIELDS = ("maze_eval_layouts", "deadlock_guard")
 
 
 def _k(key: str, name: str) -> str:
@@ -135,6 +141,7 @@ def set_widgets(key: str, choice: Choice) -> None:
     for name in SWITCHES:
         ss[_k(key, name)] = getattr(choice, name)
     ss[_k(key, "eval_explore")] = bool(choice.eval_explore)
+    ss[_k(key, "maze_eval_layouts")], ss[_k(key, "deadlock_guard")] = choice.maze_eval_layouts, choice.deadlock_guard
     if get_method(choice.method).iterative:
         ss[iterations_key(key, choice.env, choice.method)] = int(choice.iterations)
 
@@ -180,12 +187,26 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches: boo
             st.number_input("Iterations in the run", value=1, disabled=True, key=iterations_key(key, env, method),
                             help=f"{METHODS[method].title} is a single pass.")
             iterations = 1
+        maze = _maze_widgets(key, b) if get_env(env).is_maze else {}
         if not switches:
             st.caption("Changing the environment, method or seed starts a new run.")
-            return Choice(env, method, seed, iterations)
+            return Choice(env, method, seed, iterations, **maze)
         values = _switch_widgets(key, method, b)
         st.caption("Changing the environment, method, seed or a switch starts a new run.")
-    return Choice(env, method, seed, iterations, **values)
+    return Choice(env, method, seed, iterations, **values, **maze)
+
+
+def _maze_widgets(key: str, b: dict) -> dict:
+    """Where a maze policy is judged: a generalisation test, or the thesis authors' protocol."""
+    layouts = st.radio("Evaluate on", list(MAZE_EVAL_LABELS), format_func=MAZE_EVAL_LABELS.get,
+                       key=_k(key, "maze_eval_layouts"), **b,
+                       help="Held-out layouts test whether the policy learned to navigate. The thesis "
+                            "evaluated on the layouts its 100 demonstrations came from, and its agent "
+                            "lived in those layouts only: that choice reproduces it.")
+    guard = st.toggle("Deadlock guard", key=_k(key, "deadlock_guard"), **b,
+                      help="End an evaluation episode on the 4th visit to a cell, with return −1 (the thesis's "
+                           "evaluation). Without it a policy that loops wanders until the 1,000-step limit.")
+    return {"maze_eval_layouts": layouts, "deadlock_guard": bool(guard)}
 
 
 def _switch_widgets(key: str, method: str, b: dict) -> dict:
@@ -266,4 +287,6 @@ def choice_without_widgets(key: str) -> Choice:
                   sampling=pick("sampling", SAMPLING_LABELS, comp["sampling"]),
                   explore_labels=bool(pick("explore_labels", bools, comp["explore_labels"])),
                   explore_rollouts=bool(pick("explore_rollouts", bools, comp["explore_rollouts"])),
-                  eval_explore=bool(pick("eval_explore", EVAL_LABELS, False)))
+                  eval_explore=bool(pick("eval_explore", EVAL_LABELS, False)),
+                  **({"maze_eval_layouts": pick("maze_eval_layouts", MAZE_EVAL_LABELS, "held-out"),
+                      "deadlock_guard": bool(pick("deadlock_guard", bools, False))} if get_env(env).is_maze else {}))
