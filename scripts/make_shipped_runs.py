@@ -44,6 +44,9 @@ SHIPPED: dict[str, tuple[RunConfig, str]] = {
     # (without the guard a lost agent walks 1,000 steps and scores about -11, which hides an 80% goal rate)
     "maze3-iupe": (RunConfig(env="maze3", method="iupe", deadlock_guard=True),
                    "IUPE on Maze 3×3 (images; thesis's deadlock guard in evaluation)"),
+    # the thesis authors' protocol: the demonstrations' 100 layouts are the whole world
+    "maze5-iupe-thesis": (RunConfig(env="maze5", method="iupe", maze_eval_layouts="demonstration", deadlock_guard=True),
+                          "IUPE on Maze 5×5 (images; the thesis's protocol: demonstrated layouts, deadlock guard)"),
 }
 
 

@@ -121,7 +121,7 @@ def test_the_real_shipped_runs_load():
     shipped = storage.list_shipped_runs()
     names = {r.run_id for r in shipped}
     assert {"cartpole-iupe", "cartpole-bco-alpha", "cartpole-bc", "acrobot-iupe", "mountaincar-iupe",
-            "maze3-iupe"} <= names
+            "maze3-iupe", "maze5-iupe-thesis"} <= names
     for saved in shipped:
         assert saved.iterations_done == saved.iterations_total >= 1
         assert storage.folder_bytes(saved.path) < 4 * 2**20
