@@ -67,11 +67,15 @@ def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimi
     return FitResult(loss_sum / max(n, 1), correct / max(n, 1))
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def predict_proba(forward: Forward, module: torch.nn.Module, inputs: Sequence[np.ndarray],
                   batch_size: int = 2048) -> np.ndarray:
-    module.eval()
+    # called once per environment step during runs: keep the per-call overhead small
+    if module.training:
+        module.eval()
     n = len(inputs[0])
+    if 0 < n <= batch_size:
+        return torch.softmax(forward(*(as_tensor(x) for x in inputs)), -1).numpy()
     out = []
     for start in range(0, n, batch_size):
         logits = forward(*(as_tensor(x[start:start + batch_size]) for x in inputs))
