@@ -5,7 +5,7 @@
     I_s   <- I_pre
     repeat (one iteration = one `step()`):
         M(a | s, s')  trained on I_s                           # Eq 5.1
-        a_hat <- label(M, T_e)        MAP, or sampled (exploration, Sec 6.2)
+        a_hat <- label(M, T_e)        MAP, or sampled (exploration, Sec 6.2; a fresh draw per epoch)
         pi(a | s)     trained on (s_e, a_hat)                  # Eq 5.2
         I_pos, v_e <- run pi |E| times, MAP or sampled; v_e = goal reached
         I_s <- sample(I_pre, I_pos, v_e)      none | abco | abco-whole | iupe  (Eqs 5.3-5.5, Sec 6.1)
