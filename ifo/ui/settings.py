@@ -203,6 +203,10 @@ def _maze_widgets(key: str, b: dict) -> dict:
                        help="Held-out layouts test whether the policy learned to navigate. The thesis "
                             "evaluated on the layouts its 100 demonstrations came from, and its agent "
                             "lived in those layouts only: that choice reproduces it.")
+    if layouts == "held-out":
+        st.caption("A test of generalisation: from 100 demonstrations a policy mostly learns its mazes, so "
+                   "even BC (which sees the true actions) scores low here (5×5: P ≈ 0.26). The thesis's "
+                   "numbers come from the demonstrations' layouts.")
     guard = st.toggle("Deadlock guard", key=_k(key, "deadlock_guard"), **b,
                       help="End an evaluation episode on the 4th visit to a cell, with return −1 (the thesis's "
                            "evaluation). Without it a policy that loops wanders until the 1,000-step limit.")
