@@ -57,3 +57,22 @@ def test_experts_evaluate_json_contract():
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout.strip().splitlines()[-1])
     assert out["env"] == "cartpole" and out["episodes"] == 5 and out["aer"] == 500.0
+
+
+def test_bench_reproduce_passes_the_maze_protocol_to_every_run(monkeypatch, capsys):
+    import ifo.reproduce as reproduce_mod
+    from ifo.cli import main
+
+    seen = {}
+
+    def fake_reproduce(table_id, seeds, envs, iterations, **extra):
+        seen.update(table=table_id, seeds=seeds, envs=envs, iterations=iterations, extra=extra)
+        return f"(table; {reproduce_mod._protocol(extra)})"
+
+    monkeypatch.setattr(reproduce_mod, "reproduce", fake_reproduce)
+    assert main(["bench", "reproduce", "--table", "6.1", "--envs", "maze5", "--seeds", "1", "--iterations", "40",
+                 "--maze-eval-layouts", "demonstration", "--deadlock-guard", "--expert-episodes", "1000"]) == 0
+    assert seen == {"table": "6.1", "seeds": 1, "envs": ["maze5"], "iterations": 40,
+                    "extra": {"maze_eval_layouts": "demonstration", "deadlock_guard": True, "expert_episodes": 1000}}
+    out = capsys.readouterr().out
+    assert "the demonstrations' maze layouts" in out and "deadlock guard" in out and "1000 demonstrations" in out
