@@ -41,8 +41,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pre-size", type=int, help="random transitions in I_pre")
     p.add_argument("--episodes-per-iteration", type=int, help="|E|: policy runs per iteration")
     p.add_argument("--eval-episodes", type=int, default=100)
-    p.add_argument("--idm-epochs", type=int, default=2)
-    p.add_argument("--policy-epochs", type=int, default=10)
+    p.add_argument("--idm-epochs", type=int, help="IDM epochs per iteration (default: per env)")
+    p.add_argument("--policy-epochs", type=int, help="policy epochs per iteration (default: per env)")
     p.add_argument("--batch-size", type=int, default=128)
     p.add_argument("--lr", type=float)
     p.add_argument("--attention", choices=["none", "gated", "features"])
@@ -55,6 +55,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--obs-mode", choices=["image", "vector"], default="image", help="maze observations")
     p.add_argument("--image-size", type=int, default=32, help="maze image side in pixels")
     p.add_argument("--deadlock-guard", type=_bool, default=False, metavar="BOOL")
+    p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"], default="held-out",
+                   help="maze: evaluate on held-out layouts, or live in the demonstrations' layouts (the thesis)")
 
 
 def config_from_args(a: argparse.Namespace) -> RunConfig:
@@ -64,7 +66,8 @@ def config_from_args(a: argparse.Namespace) -> RunConfig:
         idm_epochs=a.idm_epochs, policy_epochs=a.policy_epochs, batch_size=a.batch_size, lr=a.lr,
         attention=a.attention, sampling=a.sampling, explore_labels=a.explore_labels,
         explore_rollouts=a.explore_rollouts, eval_explore=a.eval_explore, demos=a.demos,
-        obs_mode=a.obs_mode, image_size=a.image_size, deadlock_guard=a.deadlock_guard)
+        obs_mode=a.obs_mode, image_size=a.image_size, deadlock_guard=a.deadlock_guard,
+        maze_eval_layouts=a.maze_eval_layouts)
     return cfg.resolved()
 
 
@@ -86,8 +89,11 @@ def cmd_train(a: argparse.Namespace) -> int:
         rec = run.step()
         ev = rec["evaluation"]
         bar.update(1)
+        idm = rec.get("idm", {})
+        idm_text = (f"IDM on T_e {_fmt(idm.get('expert_accuracy'))} (I_pre val {_fmt(idm.get('val_accuracy'))})  "
+                    if idm else "")
         bar.write(f"iteration {rec['iteration']:>3}  AER {ev['aer']:9.2f}  P {_fmt(ev['performance'])}  "
-                  f"goal {ev['goal_rate']:.2f}  {rec['seconds']['total']:.2f}s", file=sys.stdout)
+                  f"goal {ev['goal_rate']:.2f}  {idm_text}{rec['seconds']['total']:.2f}s", file=sys.stdout)
         run.save(out)
     bar.close()
     ev = run.records[-1]["evaluation"]

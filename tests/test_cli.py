@@ -76,3 +76,15 @@ def test_bench_reproduce_passes_the_maze_protocol_to_every_run(monkeypatch, caps
                     "extra": {"maze_eval_layouts": "demonstration", "deadlock_guard": True, "expert_episodes": 1000}}
     out = capsys.readouterr().out
     assert "the demonstrations' maze layouts" in out and "deadlock guard" in out and "1000 demonstrations" in out
+
+
+def test_train_takes_the_same_defaults_as_the_app_and_the_maze_protocol():
+    from ifo.cli import build_parser, config_from_args
+    from ifo.config import RunConfig
+
+    args = build_parser().parse_args(["train", "--env", "maze5", "--method", "iupe"])
+    assert config_from_args(args) == RunConfig(env="maze5", method="iupe").resolved()  # per-env epochs, not 2/10
+    args = build_parser().parse_args(["train", "--env", "maze5", "--method", "iupe", "--policy-epochs", "3",
+                                      "--maze-eval-layouts", "demonstration", "--deadlock-guard", "true"])
+    cfg = config_from_args(args)
+    assert (cfg.policy_epochs, cfg.maze_eval_layouts, cfg.deadlock_guard) == (3, "demonstration", True)
