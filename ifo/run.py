@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ifo.components.exploration import choose, exploration_rate
+from ifo.components.exploration import choose, exploration_rate, label_passes
 from ifo.components.learning import fit, make_optimizer, predict_proba
 from ifo.components.sampling import build_training_set
 from ifo.config import RunConfig
@@ -194,11 +194,8 @@ class Run:
                 val_probs = predict_proba(self.idm, self.idm, [val.states, val.next_states])
             with self._phase("label", seconds):  # a_hat for the expert's pairs
                 probs = predict_proba(self.idm, self.idm, [t_e.states, t_e.next_states])
-                labels, map_labels = choose(probs, cfg.explore_labels, rng)
-                # exploration: a fresh draw for each pass of the policy over T_e, so one unlucky
-                # draw is not memorised for the whole iteration (the authors' code made one pass)
-                targets = (np.stack([labels] + [choose(probs, True, rng)[0] for _ in range(cfg.policy_epochs - 1)])
-                           if cfg.explore_labels else labels)
+                targets, map_labels = label_passes(probs, cfg.explore_labels, cfg.policy_epochs, rng)
+                labels = targets[0]  # the first pass's labels stand for the iteration in the record
             record["idm"] = {
                 "loss": idm_fit.loss, "train_accuracy": idm_fit.accuracy,
                 "val_accuracy": float(np.mean(val_probs.argmax(-1) == val.actions)) if len(val) else None,
@@ -208,8 +205,7 @@ class Run:
             }
             record["labels"] = {"counts": np.bincount(labels, minlength=n_actions).tolist(),
                                 "sampled": bool(cfg.explore_labels),
-                                "exploration_rate": exploration_rate(np.ravel(targets),
-                                                                     np.resize(map_labels, np.size(targets)))}
+                                "exploration_rate": exploration_rate(targets, np.broadcast_to(map_labels, targets.shape))}
             if hidden is not None:
                 record["idm"]["true_counts"] = np.bincount(hidden, minlength=n_actions).tolist()
                 record["idm"]["expert_accuracy"] = float(np.mean(map_labels == hidden))

@@ -214,7 +214,8 @@ def test_exploring_labels_draws_them_afresh_for_every_pass_over_the_demonstratio
         assert targets.shape == (3, len(run.expert)) and not (targets[0] == targets[1:]).all()
         assert record["labels"]["exploration_rate"] > 0
     else:  # MAP labels: the same every epoch
-        assert targets.shape == (len(run.expert),) and record["labels"]["exploration_rate"] == 0
+        assert targets.shape == (3, len(run.expert)) and (targets == targets[0]).all()
+        assert record["labels"]["exploration_rate"] == 0
 
 
 def test_fit_refuses_a_label_set_per_epoch_that_does_not_match_the_epochs():
