@@ -10,14 +10,13 @@ from ifo.runtime import limit_threads  # noqa: E402
 limit_threads()
 
 
+def make_tiny_config(**overrides) -> RunConfig:
+    """A CartPole run small enough for a unit test (a second or two per iteration)."""
+    base = dict(env="cartpole", method="bco-alpha", iterations=2, pre_size=2000, episodes_per_iteration=10,
+                eval_episodes=10, policy_epochs=2, expert_episodes=2)
+    return RunConfig(**{**base, **overrides})
+
+
 @pytest.fixture
 def tiny_config():
-    """A CartPole run small enough for a unit test (a second or two per iteration)."""
-
-    def make(**overrides):
-        base = dict(env="cartpole", method="bco-alpha", iterations=2, pre_size=2000, episodes_per_iteration=10,
-                    eval_episodes=10, policy_epochs=2, expert_episodes=2)
-        base.update(overrides)
-        return RunConfig(**base)
-
-    return make
+    return make_tiny_config

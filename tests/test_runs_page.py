@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from streamlit.testing.v1 import AppTest
 
-from ifo.config import RunConfig
+from conftest import make_tiny_config
 from ifo.run import Run
 from ifo.ui import storage
 
@@ -25,8 +25,7 @@ def env(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def tiny_run():
-    run = Run(RunConfig(env="cartpole", method="bco-alpha", iterations=3, pre_size=2000, episodes_per_iteration=10,
-                        eval_episodes=10, policy_epochs=2, expert_episodes=2))
+    run = Run(make_tiny_config(iterations=3))
     run.step()
     return run
 

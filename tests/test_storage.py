@@ -6,6 +6,7 @@ import zipfile
 import numpy as np
 import pytest
 
+from conftest import make_tiny_config
 from ifo.data.demos import DemoError
 from ifo.run import Run
 from ifo.ui import storage
@@ -21,10 +22,7 @@ def runs_root(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def tiny_run():
-    from ifo.config import RunConfig
-
-    run = Run(RunConfig(env="cartpole", method="bco-alpha", iterations=2, pre_size=2000, episodes_per_iteration=10,
-                        eval_episodes=10, policy_epochs=2, expert_episodes=2))
+    run = Run(make_tiny_config())
     run.step()
     return run
 
@@ -159,9 +157,6 @@ def test_uploaded_demos_are_validated_and_a_bad_upload_keeps_the_good_file():
 
 
 def test_a_run_trains_on_uploaded_demos():
-    from ifo.config import RunConfig
-
     saved = storage.save_demos(USER, "cartpole", "two.npz", npz(cartpole_demos(2)))
-    run = Run(RunConfig(env="cartpole", method="bco-alpha", demos=str(saved.path), iterations=1, pre_size=2000,
-                        episodes_per_iteration=10, eval_episodes=10, policy_epochs=2, expert_episodes=2))
+    run = Run(make_tiny_config(demos=str(saved.path), iterations=1))
     assert run.demos.n_episodes == 2
