@@ -15,56 +15,23 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import re
-import socket
-import subprocess
 import sys
 import tempfile
 import time
 import urllib.parse
-import urllib.request
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from scripts.app_server import healthy, serve_app  # noqa: E402
 CHROMIUM = "/usr/bin/chromium"
 IDLE = "[data-testid='stApp'][data-test-script-state='notRunning']"
 LOOPBACK = {"127.0.0.1", "localhost", "::1"}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def healthy(url: str) -> bool:
-    try:
-        with urllib.request.urlopen(f"{url}/_stcore/health", timeout=2) as r:
-            return r.read().decode().strip() == "ok"
-    except OSError:
-        return False
-
-
-def start_server(log_path: Path, runs_dir: str) -> tuple[subprocess.Popen, str]:
-    port = free_port()
-    env = {**os.environ, "IFO_LAB_FAST": "1", "IFO_LAB_RUNS": runs_dir, "PYTHONPATH": str(ROOT),
-           "SDL_VIDEODRIVER": "dummy"}
-    log = open(log_path, "w")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "streamlit", "run", "app.py", "--server.headless", "true", "--server.address",
-         "127.0.0.1", "--server.port", str(port), "--browser.gatherUsageStats", "false"],
-        cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 90
-    while not healthy(url):
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            raise SystemExit(f"the app server did not start; see {log_path}:\n{log_path.read_text()[-2000:]}")
-        time.sleep(0.5)
-    return proc, url
 
 
 async def session(browser, url: str, k: int, steps: int, step_timeout: float, results: dict,
@@ -156,32 +123,23 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--sessions must be 1..100 and --steps 1..50")
     if not Path(CHROMIUM).exists():
         parser.error(f"{CHROMIUM} is missing: install Debian's chromium package")
-    proc = None
     with tempfile.TemporaryDirectory(prefix="ifo-load-") as tmp:
         if args.url:
             host = urllib.parse.urlparse(args.url).hostname
             if host not in LOOPBACK:
                 parser.error(f"--url must be a loopback address ({', '.join(sorted(LOOPBACK))}), got {host!r}")
-            url = args.url.rstrip("/")
-            if not healthy(url):
-                parser.error(f"no healthy Streamlit app at {url}")
+            if not healthy(args.url.rstrip("/")):
+                parser.error(f"no healthy Streamlit app at {args.url}")
+            server = nullcontext(args.url.rstrip("/"))
         else:
-            proc, url = start_server(Path(tmp) / "server.log", str(Path(tmp) / "runs"))
-        try:
+            server = serve_app(Path(tmp) / "server.log", {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(Path(tmp) / "runs")})
+        with server as url:  # RuntimeError with the server's log if it does not start
             start = time.perf_counter()
             if args.screenshots:
                 Path(args.screenshots).mkdir(parents=True, exist_ok=True)
             results = asyncio.run(run_sessions(url, args.sessions, args.steps, args.step_timeout, args.timeout,
                                                args.screenshots))
             print(report(results, args.sessions, args.steps, time.perf_counter() - start))
-        finally:
-            if proc is not None:
-                proc.terminate()
-                try:
-                    proc.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
     return 0
 
 

@@ -6,16 +6,12 @@ Step three times and checks that the charts are drawn and grow, shows a rollout 
 saves a full-page screenshot to artifacts/browser/step_page.png for a person to look at,
 then turns exploration off and checks that a new run starts.
 """
-import os
-import socket
-import subprocess
 import xml.etree.ElementTree as ET
-import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
+
+from scripts.app_server import serve_app
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = Path("/usr/bin/chromium")
@@ -29,47 +25,14 @@ pytestmark = [
 ]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _healthy(url: str) -> bool:
-    try:
-        with urllib.request.urlopen(f"{url}/_stcore/health", timeout=2) as r:
-            return r.read().decode().strip() == "ok"
-    except OSError:
-        return False
-
-
 @pytest.fixture(scope="session")
 def app_url(tmp_path_factory):
-    port = _free_port()
     log_path = tmp_path_factory.mktemp("streamlit") / "server.log"
-    env = {**os.environ, "IFO_LAB_FAST": "1", "PYTHONPATH": str(ROOT)}
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "streamlit", "run", "app.py", "--server.headless", "true",
-             "--server.port", str(port), "--browser.gatherUsageStats", "false"],
-            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
-        while not _healthy(url):
-            if proc.poll() is not None:
-                pytest.fail(f"streamlit exited with code {proc.returncode}:\n{log_path.read_text()}")
-            if time.monotonic() > deadline:
-                pytest.fail(f"streamlit was not healthy within 60 s:\n{log_path.read_text()}")
-            time.sleep(0.5)
-        yield url
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        with serve_app(log_path, {"IFO_LAB_FAST": "1"}, timeout=60) as url:
+            yield url
+    except RuntimeError as exc:  # the server did not come up: say why, with its log
+        pytest.fail(str(exc))
 
 
 @pytest.fixture
