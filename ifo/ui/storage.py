@@ -25,6 +25,7 @@ import time
 import uuid
 import zipfile
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 from ifo.io import atomic_write_json
@@ -85,6 +86,21 @@ def run_path(user: str, run_id: str) -> Path:
     return _safe_child(user, run_id)
 
 
+def _records(path: Path) -> list[dict]:
+    """The records of the checkpoint a run folder's LATEST points to."""
+    ckpt = path / (path / "LATEST").read_text().strip()
+    return json.loads((ckpt / "records.json").read_text())
+
+
+@lru_cache(maxsize=512)
+def _summary(ckpt: Path) -> tuple[int, tuple | None]:
+    """Iterations done and the last evaluation of a checkpoint. A save never rewrites a
+    checkpoint folder (it makes a new one), so each is parsed once, not on every listing."""
+    records = json.loads((ckpt / "records.json").read_text())
+    last = tuple((k, records[-1]["evaluation"].get(k)) for k in ("aer", "performance", "goal_rate")) if records else None
+    return len(records), last
+
+
 def _read_saved(path: Path) -> SavedRun | None:
     """A complete saved run in `path`, or None (half-written, damaged, not a run)."""
     latest = path / "LATEST"
@@ -92,14 +108,12 @@ def _read_saved(path: Path) -> SavedRun | None:
         return None
     try:
         config = json.loads((path / "config.json").read_text())
-        ckpt = path / latest.read_text().strip()
-        records = json.loads((ckpt / "records.json").read_text())
+        done, last = _summary(path / latest.read_text().strip())
         label_file = path / "label.json"
         label = json.loads(label_file.read_text())["label"] if label_file.exists() else path.name
-        last = {k: records[-1]["evaluation"].get(k) for k in ("aer", "performance", "goal_rate")} if records else None
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    return SavedRun(path.name, path, label, config, len(records), latest.stat().st_mtime, last)
+    return SavedRun(path.name, path, label, config, done, latest.stat().st_mtime, dict(last) if last else None)
 
 
 def list_runs(user: str) -> list[SavedRun]:
@@ -122,8 +136,7 @@ def get_run(user: str, run_id: str) -> SavedRun:
 def last_records(saved: SavedRun) -> list[dict]:
     """The records of a saved run's latest checkpoint ([] if unreadable)."""
     try:
-        ckpt = saved.path / (saved.path / "LATEST").read_text().strip()
-        return json.loads((ckpt / "records.json").read_text())
+        return _records(saved.path)
     except (OSError, ValueError):
         return []
 
