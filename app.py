@@ -12,6 +12,7 @@ import streamlit as st  # noqa: E402
 
 from ifo.methods import METHODS, PLANNED  # noqa: E402
 from ifo.runtime import limit_threads  # noqa: E402
+from ifo.ui import storage  # noqa: E402
 
 limit_threads()
 PLANNED_TITLES = {"gaifo": "GAIfO"}
@@ -46,6 +47,9 @@ def landing() -> None:
         st.switch_page(step_page)
 
 
+# One notion of "who is this" for every page: the `?user=` id, else the one this session already has,
+# else a new one; written back into the URL on every page, because sidebar links drop query params.
+storage.current_user()
 home = st.Page(landing, title="Welcome", icon=":material/school:", default=True)
 st.navigation([home, step_page,
                st.Page("pages/runs.py", title="Your runs", icon=":material/folder_open:", url_path="runs"),

@@ -15,7 +15,8 @@ from ifo.runtime import limit_threads
 from ifo.ui.diagram import loop_diagram
 from ifo.ui.panels import CHART_CONFIG, PanelContext, counter, draw_panels, metrics_row
 from ifo.ui.registry import active_panels
-from ifo.ui.session import RunSlot, current_user, hidden
+from ifo.ui import storage
+from ifo.ui.session import RunSlot, hidden
 from ifo.ui.settings import choice_without_widgets, run_settings
 
 limit_threads()
@@ -26,7 +27,7 @@ st.caption("Each press of Step is one iteration of the BCO loop: train the IDM, 
            "state pairs, train the policy, run it, and choose what the IDM learns from next.")
 
 slot = RunSlot(KEY)
-slot.state.user = current_user()
+slot.state.user = storage.current_user()
 slot.open_from_url(KEY)  # ?run=<id>: a saved run, before the widgets take their values
 choice = choice_without_widgets(KEY) if "settings" in hide else run_settings(KEY, bind=True)
 run = slot.ensure(choice)
@@ -44,14 +45,16 @@ sizes = dict(pre_size=len(run.pre.train) if run.pre is not None else None, exper
 @st.fragment(run_every=slot.tick)
 def live():
     progress, count_area, scrub_area, diagram_area = st.empty(), st.empty(), st.empty(), st.empty()
-    last = {"phase": None}
+    last = {"phase": None, "draws": 0}
 
     def on_phase(phase, iteration):  # highlight the phase being trained
         if "diagram" in hide or phase == last["phase"]:
             return
-        last["phase"] = phase
+        last["phase"], last["draws"] = phase, last["draws"] + 1
+        # a key per draw: a phase may come back within one iteration (the maze's attention probes),
+        # and two unkeyed charts with the same figure would share one auto-generated id
         diagram_area.plotly_chart(loop_diagram(run.records[-1] if run.records else None, phase, **sizes),
-                                  config=CHART_CONFIG)
+                                  key=f"step.diagram.live.{last['draws']}", config=CHART_CONFIG)
 
     if slot.advance(progress, on_phase):  # a Play just ended: redraw the buttons, stop the timer
         st.rerun()

@@ -404,3 +404,41 @@ def test_maze_runs_can_be_judged_as_the_thesis_did():
     at.radio(key="step.maze_eval_layouts").set_value("held-out").run()  # a new run, judged on held-out layouts
     assert not at.exception
     assert slot(at).run.config.maze_eval_layouts == "held-out"
+
+
+# --------------------------------------------------------------------------- journeys that broke a class
+@pytest.mark.parametrize("method", ["bco-alpha", "abco", "iupe"])
+def test_every_maze_method_steps_without_an_error(method):
+    """Image runs report a phase twice per iteration (the attention probes); the live loop
+    diagram drawn at each phase once gave two charts the same id and failed every Step."""
+    at = open_step_page(**{"step.env": "Maze 3x3", "step.method": {"bco-alpha": "BCO(α)", "abco": "ABCO",
+                                                                    "iupe": "IUPE"}[method]})
+    assert slot(at).run.config.method == method
+    for k in (1, 2):
+        at.button(key="step").click().run()
+        assert not at.exception and not at.error, [e.value for e in at.error]
+        assert counter(at) == f"Iteration {k} of 15"
+
+
+def test_the_user_stays_the_same_across_pages():
+    from ifo.ui import storage
+
+    def user_of(at):
+        value = at.query_params[storage.USER_PARAM]
+        return value[0] if isinstance(value, list) else value
+
+    at = open_app()
+    user = user_of(at)
+    assert storage.valid_user(user)  # every page, the landing page too, knows who this is
+    at.switch_page(STEP_PAGE).run()
+    at.button(key="step").click().run()
+    assert user_of(at) == user
+    at.query_params.pop(storage.USER_PARAM)  # a sidebar link carries no ?user=
+    at.switch_page("pages/runs.py").run()
+    assert not at.exception
+    assert user_of(at) == user
+    assert [r.iterations_done for r in storage.list_runs(user)] == [1]  # the autosave is where the list looks
+    assert any("1 of 10 iterations" in c.value for c in at.caption)
+    at.query_params.pop(storage.USER_PARAM)
+    at.switch_page(STEP_PAGE).run()
+    assert user_of(at) == user and counter(at) == "Iteration 1 of 10"  # the same run, not a new user

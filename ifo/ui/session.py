@@ -375,15 +375,6 @@ def _acquire(lock, bar: _ProgressBar, area, message: str) -> None:
         raise bar.deferred
 
 
-def current_user() -> str:
-    """The page's user id from the URL (`?user=`), made and put in the URL when missing or invalid."""
-    user = st.query_params.get(storage.USER_PARAM)
-    if not storage.valid_user(user):
-        user = storage.new_user()
-        st.query_params[storage.USER_PARAM] = user
-    return user
-
-
 def hidden() -> set[str]:
     """What a lesson hides: `?hide=settings,diagram,rollout` (controls, panels by registry key)."""
     return {h.strip().lower() for h in st.query_params.get("hide", "").split(",") if h.strip()}
