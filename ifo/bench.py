@@ -22,7 +22,8 @@ QUICK = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_
 
 
 def run_once(env: str, method: str, seed: int, iterations: int | None, quick: bool, **overrides) -> dict:
-    cfg = RunConfig(env=env, method=method, seed=seed, iterations=iterations, **(QUICK if quick else {}), **overrides)
+    cfg = RunConfig.from_dict({"env": env, "method": method, "seed": seed, "iterations": iterations,
+                               **(QUICK if quick else {}), **overrides})
     start = time.perf_counter()
     run = Run(cfg)
     setup = time.perf_counter() - start
@@ -64,16 +65,19 @@ def bench_table(envs: list[str], seeds: int = 3, iterations: int | None = None, 
 def speed_table(cases=(("cartpole", "iupe"), ("maze5", "iupe"), ("cartpole", "bco-alpha"), ("maze5", "bco-alpha")),
                 iterations: int = 5, log=lambda msg: print(msg, file=sys.stderr)) -> str:
     """Seconds per iteration and per phase (median over iterations) for the interactive settings."""
-    phases = ("idm", "label", "policy", "attention", "rollout", "sampling", "evaluate")
-    lines = ["| environment | method | setup s | s/iteration (median) | " + " | ".join(phases) + " |",
-             "|" + "---|" * (4 + len(phases))]
+    rows, phases = [], []
     for env, method in cases:
         start = time.perf_counter()
         run = Run(RunConfig(env=env, method=method, iterations=iterations))
         setup = time.perf_counter() - start
         run.run()
-        med = lambda key: float(np.median([r["seconds"].get(key, 0.0) for r in run.records]))  # noqa: E731
-        log(f"{env} {method}: {med('total'):.2f} s/iteration")
+        phases += [p for p in run.phases() if p not in phases]
+        rows.append((env, method, setup, run.records))
+        log(f"{env} {method}: {np.median([r['seconds']['total'] for r in run.records]):.2f} s/iteration")
+    lines = ["| environment | method | setup s | s/iteration (median) | " + " | ".join(phases) + " |",
+             "|" + "---|" * (4 + len(phases))]
+    for env, method, setup, records in rows:
+        med = lambda key: float(np.median([r["seconds"].get(key, 0.0) for r in records]))  # noqa: E731
         lines.append(f"| {env} | {method} | {setup:.2f} | {med('total'):.2f} | "
                      + " | ".join(f"{med(p):.2f}" for p in phases) + " |")
     lines += ["", f"{iterations} iterations each, default settings, torch threads: 1."]
@@ -85,7 +89,7 @@ def export_table(run_dir: str | None = None, log=lambda msg: print(msg, file=sys
     from ifo import export
 
     if run_dir is None:
-        run = Run(RunConfig(env="cartpole", method="iupe", iterations=2, **QUICK))
+        run = Run(RunConfig.from_dict(dict(env="cartpole", method="iupe", iterations=2, **QUICK)))
         run.run()
         records, config, names = run.records, run.config.to_dict(), run.spec.action_names
     else:
@@ -119,7 +123,7 @@ VANISHING = dict(pre_size=300, iterations=5, eval_episodes=20)
 
 def vanishing_actions_case(method: str, seed: int, **overrides) -> dict:
     """One CartPole run with a small I_pre: last AER, and how much of T_e the IDM gives one action."""
-    run = Run(RunConfig(env="cartpole", method=method, seed=seed, **{**VANISHING, **overrides}))
+    run = Run(RunConfig.from_dict({"env": "cartpole", "method": method, "seed": seed, **VANISHING, **overrides}))
     run.run()
     last = run.records[-1]
     counts = np.asarray(last["idm"]["prediction_counts"])

@@ -23,52 +23,44 @@ class CliError(Exception):
     pass
 
 
-def _bool(text: str) -> bool:
-    v = text.strip().lower()
-    if v in ("1", "true", "yes", "on"):
-        return True
-    if v in ("0", "false", "no", "off"):
-        return False
-    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+def _learner_classes():
+    from ifo.learners import LEARNERS
+
+    return [learner.Config for learner in LEARNERS.values()]
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
+    """Flags generated from the configuration classes (ifo/config.py, ifo/learners/): one per field,
+    with the field's own help and bounds; each learner's settings in a group of their own."""
+    from ifo.options import add_arguments, specs
+
     p.add_argument("--env", required=True, help=f"one of {', '.join(ENV_NAMES)} or a gymnasium id")
     p.add_argument("--method", required=True, help=f"one of {', '.join(METHODS)}")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--iterations", type=int, help="alpha: number of iterations (default: per env/method)")
-    p.add_argument("--expert-episodes", type=int, help="demonstration episodes used (T_e)")
-    p.add_argument("--pre-size", type=int, help="random transitions in I_pre")
-    p.add_argument("--episodes-per-iteration", type=int, help="|E|: policy runs per iteration")
-    p.add_argument("--eval-episodes", type=int, default=100)
-    p.add_argument("--idm-epochs", type=int, help="IDM epochs per iteration (default: per env)")
-    p.add_argument("--policy-epochs", type=int, help="policy epochs per iteration (default: per env)")
-    p.add_argument("--batch-size", type=int, default=128)
-    p.add_argument("--lr", type=float)
-    p.add_argument("--attention", choices=["none", "gated", "features"])
-    p.add_argument("--sampling", choices=["none", "abco", "abco-whole", "iupe"])
-    p.add_argument("--explore-labels", type=_bool, metavar="BOOL")
-    p.add_argument("--explore-rollouts", type=_bool, metavar="BOOL")
-    p.add_argument("--eval-explore", type=_bool, default=False, metavar="BOOL",
-                   help="measure AER with actions sampled from the policy's softmax")
-    p.add_argument("--demos", help="your own demonstrations (.npz: obs, rewards, episode_starts[, actions])")
-    p.add_argument("--obs-mode", choices=["image", "vector"], default="image", help="maze observations")
-    p.add_argument("--image-size", type=int, default=32, help="maze image side in pixels")
-    p.add_argument("--deadlock-guard", type=_bool, default=False, metavar="BOOL")
-    p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"], default="held-out",
-                   help="maze: evaluate on held-out layouts, or live in the demonstrations' layouts (the thesis)")
+    add_arguments(p.add_argument_group("run settings"), RunConfig, skip=("env", "method"))
+    seen: set[str] = set()
+    for cls in _learner_classes():
+        fresh = [s.name for s in specs(cls) if s.name not in seen]
+        if fresh:
+            methods = ", ".join(m.title for m in METHODS.values() if issubclass(m.learner_class.Config, cls))
+            add_arguments(p.add_argument_group(f"{cls.__name__} settings ({methods})"), cls,
+                          skip=tuple(n for n in (s.name for s in specs(cls)) if n in seen))
+            seen |= set(fresh)
 
 
 def config_from_args(a: argparse.Namespace) -> RunConfig:
-    cfg = RunConfig(
-        env=a.env, method=a.method, seed=a.seed, iterations=a.iterations, expert_episodes=a.expert_episodes,
-        pre_size=a.pre_size, episodes_per_iteration=a.episodes_per_iteration, eval_episodes=a.eval_episodes,
-        idm_epochs=a.idm_epochs, policy_epochs=a.policy_epochs, batch_size=a.batch_size, lr=a.lr,
-        attention=a.attention, sampling=a.sampling, explore_labels=a.explore_labels,
-        explore_rollouts=a.explore_rollouts, eval_explore=a.eval_explore, demos=a.demos,
-        obs_mode=a.obs_mode, image_size=a.image_size, deadlock_guard=a.deadlock_guard,
-        maze_eval_layouts=a.maze_eval_layouts)
-    return cfg.resolved()
+    from ifo.methods import get_method
+    from ifo.options import given
+
+    values = given(a, RunConfig)
+    values.update(env=a.env, method=a.method)
+    method = get_method(a.method)
+    own = method.learner_class.Config
+    for cls in _learner_classes():
+        for name, value in given(a, cls).items():
+            if name not in own.field_names():
+                raise CliError(f"--{name.replace('_', '-')} does not apply to {method.title}")
+            values[name] = value
+    return RunConfig.from_dict(values).resolved()
 
 
 def _fmt(v, spec=".3f") -> str:
@@ -80,8 +72,11 @@ def cmd_train(a: argparse.Namespace) -> int:
 
     from ifo.run import Run
 
+    from ifo import checkpoint
+
     cfg = config_from_args(a)
     out = Path(a.out) if a.out else RUNS_DIR / f"{cfg.env}-{cfg.method}-s{cfg.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    checkpoint.prepare_out_dir(out, overwrite=a.overwrite)  # before minutes of training, not after
     start = time.perf_counter()
     run = Run(cfg)
     bar = tqdm(total=cfg.iterations, desc=f"{cfg.method} on {cfg.env}", file=sys.stderr, disable=a.quiet)
@@ -94,7 +89,7 @@ def cmd_train(a: argparse.Namespace) -> int:
                     if idm else "")
         bar.write(f"iteration {rec['iteration']:>3}  AER {ev['aer']:9.2f}  P {_fmt(ev['performance'])}  "
                   f"goal {ev['goal_rate']:.2f}  {idm_text}{rec['seconds']['total']:.2f}s", file=sys.stdout)
-        run.save(out)
+        run.save(out, overwrite=a.overwrite and run.iteration == 1)
     bar.close()
     ev = run.records[-1]["evaluation"]
     summary = {"env": cfg.env, "method": cfg.method, "seed": cfg.seed, "iterations": run.iteration,
@@ -110,6 +105,8 @@ def cmd_train(a: argparse.Namespace) -> int:
 def cmd_demos_check(a: argparse.Namespace) -> int:
     from ifo.data.demos import load_demonstrations, summarize
 
+    if not 16 <= a.image_size <= 256:  # checked before a maze env allocates images of that size
+        raise CliError(f"--image-size must be between 16 and 256 pixels, got {a.image_size}")
     spec = get_env(a.env)
     env = spec.make(**({"obs_mode": a.obs_mode, "image_size": a.image_size} if spec.is_maze else {}))
     shape = tuple(env.observation_space.shape)
@@ -122,6 +119,10 @@ def cmd_demos_check(a: argparse.Namespace) -> int:
 
 
 def cmd_experts(a: argparse.Namespace) -> int:
+    if a.episodes < 1:
+        raise CliError(f"--episodes must be a whole number >= 1, got {a.episodes}")
+    if a.timesteps is not None and a.timesteps < 1:
+        raise CliError(f"--timesteps must be a whole number >= 1, got {a.timesteps}")
     envs = ENV_NAMES if a.env == "all" else [get_env(a.env).name]
     if a.action == "train":
         from ifo.experts.train import train_expert
@@ -215,7 +216,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train a method and save the run")
     _add_run_options(p)
-    p.add_argument("--out", help="run folder (default runs/ENV-METHOD-sSEED-TIME)")
+    p.add_argument("--out", help="run folder (default runs/ENV-METHOD-sSEED-TIME); must be new or empty")
+    p.add_argument("--overwrite", action="store_true", help="replace the run already saved in --out")
     p.add_argument("--json", action="store_true", help="end with one JSON line summarising the run")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
@@ -223,9 +225,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("experts", help="expert policies, their demonstrations and reference returns")
     p.add_argument("action", choices=["train", "evaluate", "demos", "references"])
     p.add_argument("--env", default="all")
-    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--episodes", type=int, default=100, help="episodes to evaluate or record (>= 1)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--timesteps", type=int)
+    p.add_argument("--timesteps", type=int, help="expert training steps (>= 1; default: per env)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_experts)
 
@@ -236,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--env", required=True)
     c.add_argument("--require-actions", action="store_true", help="also require 'actions' (needed for BC)")
     c.add_argument("--obs-mode", choices=["image", "vector"], default="image")
-    c.add_argument("--image-size", type=int, default=32)
+    c.add_argument("--image-size", type=int, default=32, help="maze image side in pixels (16..256)")
     c.set_defaults(func=cmd_demos_check)
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")

@@ -1,130 +1,169 @@
-"""A run's configuration: every ablation switch is a plain field.
+"""A run's configuration: the shared settings of `Run` plus the learner's own configuration.
 
-Fields left as None take the method's default (its components) and then the
-environment's default (sizes and learning rates that suit it), so
-`RunConfig(env="cartpole", method="iupe")` is a sensible run.
+    RunConfig(env="cartpole", method="iupe")                       a sensible run: defaults everywhere
+    RunConfig(env="cartpole", method="iupe", learner=BCOConfig(pre_size=300))
+    RunConfig.from_dict({"env": "cartpole", "method": "iupe", "pre_size": 300})   the same, flat
+
+Fields left None take the method's choice, then the environment's default. Every field is
+declared once with `ifo.options.option` (help, bounds), so the command line's flags and the
+app's widgets are generated from these classes and checked by the same rules.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields, replace
 
-from ifo.components.sampling import SAMPLING_MODES
-from ifo.envs import get_env
+from ifo.envs import ENV_NAMES, get_env
+from ifo.learners.base import LearnerConfig
 from ifo.methods import get_method
-from ifo.nets import ATTENTION_KINDS
+from ifo.options import check_field, option, specs
 
-# Sizes per environment. I_pre sizes follow the authors' code (|A| x 5,000 capped per
-# class; CartPole 10k, Acrobot/MountainCar 15k); iteration counts are kept short
-# enough for a class, the thesis ran 100.
+# Per environment: iteration counts short enough for a class (the thesis ran 100), the number of
+# demonstrations, and the maze's step limit for training runs (I_pre, I_pos; evaluation keeps 1,000).
 ENV_DEFAULTS: dict[str, dict] = {
-    "cartpole": dict(pre_size=10_000, iterations=10, expert_episodes=10, episodes_per_iteration=50, lr=3e-3),
-    "acrobot": dict(pre_size=15_000, iterations=15, expert_episodes=10, episodes_per_iteration=50, lr=3e-3),
-    "mountaincar": dict(pre_size=15_000, iterations=20, expert_episodes=10, episodes_per_iteration=50, lr=3e-3),
-    "lunarlander": dict(pre_size=20_000, iterations=20, expert_episodes=20, episodes_per_iteration=50, lr=1e-3),
-    # mazes: images through a CNN cost ~100x a vector MLP, so fewer gradient steps per
-    # iteration, and training runs stop after 4 x cells steps (evaluation keeps 1,000)
-    "maze3": dict(pre_size=4_000, iterations=15, expert_episodes=100, episodes_per_iteration=50, lr=1e-3,
-                  idm_epochs=1, policy_epochs=5, rollout_max_steps=36),
-    "maze5": dict(pre_size=6_000, iterations=15, expert_episodes=100, episodes_per_iteration=50, lr=1e-3,
-                  idm_epochs=1, policy_epochs=5, rollout_max_steps=100),
-    "maze10": dict(pre_size=10_000, iterations=20, expert_episodes=100, episodes_per_iteration=50, lr=1e-3,
-                   idm_epochs=1, policy_epochs=5, rollout_max_steps=400),
+    "cartpole": dict(iterations=10, expert_episodes=10),
+    "acrobot": dict(iterations=15, expert_episodes=10),
+    "mountaincar": dict(iterations=20, expert_episodes=10),
+    "lunarlander": dict(iterations=20, expert_episodes=20),
+    "maze3": dict(iterations=15, expert_episodes=100, rollout_max_steps=36),
+    "maze5": dict(iterations=15, expert_episodes=100, rollout_max_steps=100),
+    "maze10": dict(iterations=20, expert_episodes=100, rollout_max_steps=400),
 }
-COMMON_DEFAULTS = dict(idm_epochs=2, policy_epochs=10)
+MAX_SEED = 2**32 - 1
+CONFIG_SCHEMA = 2  # 1: one flat dict (before learners had their own configuration)
 
 
 @dataclass(frozen=True)
 class RunConfig:
-    env: str = "cartpole"
-    method: str = "bco-alpha"
-    seed: int = 0
-    iterations: int | None = None  # alpha: how many presses of Step make a full run
-    expert_episodes: int | None = None  # how many demonstration episodes T_e holds
-    pre_size: int | None = None  # |I_pre| before the 70/30 split
-    pre_per_action_cap: int = 5_000
-    episodes_per_iteration: int | None = None  # |E|
-    eval_episodes: int = 100
-    idm_epochs: int | None = None
-    policy_epochs: int | None = None
-    batch_size: int = 128
-    lr: float | None = None
-    hidden: tuple[int, ...] = (32, 32)
-    # components (None: the method's choice)
-    attention: str | None = None
-    sampling: str | None = None
-    explore_labels: bool | None = None
-    explore_rollouts: bool | None = None
-    eval_explore: bool = False  # measure AER with sampled (True) or MAP (False) actions
-    # data
-    demos: str | None = None  # a user's .npz demonstrations instead of the shipped ones
-    obs_mode: str = "image"  # maze only: "image" or "vector"
-    image_size: int = 32  # maze only
-    rollout_max_steps: int | None = None  # maze: step limit of training runs (I_pre, I_pos)
-    deadlock_guard: bool = False  # maze evaluation: end on the 4th visit to a cell with return -1
-    # maze evaluation layouts: "held-out" (never seen in demonstrations), or "demonstration":
-    # the layouts the demonstrations came from, as the thesis authors evaluated
-    maze_eval_layouts: str = "held-out"
-    attention_probes: bool = True  # maze images: Grad-CAM maps and mean-image distances each iteration
+    env: str = option("cartpole", f"the task the expert demonstrated: one of {', '.join(ENV_NAMES)}, or a "
+                                  "gymnasium id", title="Environment")
+    method: str = option("bco-alpha", "the method (see `ifo.methods`)", title="Method")
+    seed: int = option(0, "same seed, same numbers", low=0, high=MAX_SEED, title="Seed")
+    iterations: int | None = option(None, "α: how many presses of Step make a full run", low=1, high=10_000,
+                                    title="Iterations in the run")
+    expert_episodes: int | None = option(None, "how many demonstration episodes T_e holds", low=1, high=100_000,
+                                         advanced=True)
+    eval_episodes: int = option(100, "evaluation episodes per iteration (held-out seeds or maze layouts)", low=1,
+                                high=10_000, advanced=True)
+    eval_explore: bool = option(False, "measure AER with actions sampled from the policy's softmax instead of "
+                                       "the MAP action (the thesis measured IUPE so)", title="Measure AER with",
+                                widget="radio",
+                                labels={False: "MAP actions (the most likely)", True: "actions sampled from π"})
+    demos: str | None = option(None, "your own demonstrations (.npz: obs, rewards, episode_starts[, actions])",
+                               advanced=True)
+    obs_mode: str = option("image", "maze observations: images, or a vector of the agent's cell and the walls",
+                           choices=("image", "vector"), advanced=True)
+    image_size: int = option(32, "maze image side in pixels", low=16, high=256, advanced=True)
+    rollout_max_steps: int | None = option(None, "maze: step limit of the learner's own runs (I_pre, I_pos)",
+                                           low=1, high=100_000, advanced=True)
+    deadlock_guard: bool = option(False, "maze evaluation ends an episode on the 4th visit to a cell with "
+                                         "return -1 (the thesis's evaluation)", title="Deadlock guard")
+    maze_eval_layouts: str = option("held-out", "maze: evaluate on held-out layouts, or live in the "
+                                                "demonstrations' layouts (the thesis authors' protocol)",
+                                    choices=("held-out", "demonstration"), title="Evaluate on", widget="radio",
+                                    labels={"held-out": "100 layouts it never saw",
+                                            "demonstration": "the demonstrations' layouts (thesis)"})
+    attention_probes: bool = option(True, "maze images: Grad-CAM maps and mean-image distances each iteration",
+                                    advanced=True)
+    learner: LearnerConfig | None = None  # the method family's own settings (None: all its defaults)
+
+    # ------------------------------------------------------------------ resolving
+    @property
+    def learner_config_class(self) -> type[LearnerConfig]:
+        return get_method(self.method).learner_class.Config
 
     def resolved(self) -> "RunConfig":
-        """A copy with every None filled in, after checking every value."""
+        """A copy with every None filled in, after checking every value (ValueError in plain words)."""
         spec = get_env(self.env)
         method = get_method(self.method)
-        env_defaults = ENV_DEFAULTS[spec.name]
+        cls = method.learner_class.Config
+        learner = self.learner if self.learner is not None else cls()
+        if not isinstance(learner, cls):
+            raise ValueError(f"{method.title} takes a {cls.__name__}, not a {type(learner).__name__}")
+        learner = learner.resolved(method.preset, spec)
         values = {}
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if v is None and f.name in method.components:
-                v = method.components[f.name]
-            if v is None and f.name in env_defaults:
-                v = env_defaults[f.name]
-            if v is None and f.name in COMMON_DEFAULTS:
-                v = COMMON_DEFAULTS[f.name]
-            values[f.name] = v
+        for s in specs(RunConfig):
+            v = getattr(self, s.name)
+            for source in (method.run_defaults, ENV_DEFAULTS[spec.name]):
+                if v is None:
+                    v = source.get(s.name)
+            values[s.name] = v
         values["env"], values["method"] = spec.name, method.name
-        values["hidden"] = tuple(int(h) for h in values["hidden"])
-        if not method.iterative:
-            values["iterations"] = 1
-        cfg = replace(self, **values)
-        cfg.validate()
+        if learner.fixed_iterations() is not None:
+            values["iterations"] = learner.fixed_iterations()
+        cfg = replace(self, **values, learner=learner)
+        cfg.check()
         return cfg
 
-    def validate(self) -> None:
-        positive = ["iterations", "expert_episodes", "pre_size", "episodes_per_iteration", "eval_episodes",
-                    "idm_epochs", "policy_epochs", "batch_size", "pre_per_action_cap", "image_size", "rollout_max_steps"]
-        for name in positive:
-            v = getattr(self, name)
-            if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
-                raise ValueError(f"{name} must be a whole number >= 1, got {v!r}")
-        if self.lr is not None and not (0 < self.lr < 10):
-            raise ValueError(f"lr must be between 0 and 10, got {self.lr!r}")
-        if self.attention is not None and self.attention not in ATTENTION_KINDS:
-            raise ValueError(f"attention must be one of {ATTENTION_KINDS}, got {self.attention!r}")
-        if self.sampling is not None and self.sampling not in SAMPLING_MODES:
-            raise ValueError(f"sampling must be one of {SAMPLING_MODES}, got {self.sampling!r}")
-        if self.obs_mode not in ("image", "vector"):
-            raise ValueError(f"obs_mode must be 'image' or 'vector', got {self.obs_mode!r}")
-        if self.maze_eval_layouts not in ("held-out", "demonstration"):
-            raise ValueError(f"maze_eval_layouts must be 'held-out' or 'demonstration', got {self.maze_eval_layouts!r}")
-        if not 16 <= self.image_size <= 256:
-            raise ValueError(f"image_size must be between 16 and 256, got {self.image_size}")
-        if any(h < 1 for h in self.hidden) or not self.hidden:
-            raise ValueError(f"hidden must list positive layer widths, got {self.hidden!r}")
-        if self.iterations is not None and self.iterations > 10_000:
-            raise ValueError(f"iterations must be at most 10000, got {self.iterations}")
+    def check(self) -> None:
+        for s in specs(RunConfig):
+            check_field(s, getattr(self, s.name))
+        if self.learner is not None:
+            self.learner.check()
+
+    # ------------------------------------------------------------------ flat views (CLI, widgets, files)
+    def flat(self) -> dict:
+        """Every setting in one dict: the run's and the learner's (names never collide)."""
+        out = {s.name: getattr(self, s.name) for s in specs(RunConfig)}
+        if self.learner is not None:
+            out.update({f.name: getattr(self.learner, f.name) for f in fields(self.learner)})
+        return out
+
+    def with_values(self, **values) -> "RunConfig":
+        """A copy with some settings changed, run's and learner's alike (flat names)."""
+        return RunConfig.from_dict({**self.flat(), **values})
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d["hidden"] = list(self.hidden)
+        d = {s.name: getattr(self, s.name) for s in specs(RunConfig)}
+        d["learner"] = None if self.learner is None else self.learner.to_dict()
+        d["schema"] = CONFIG_SCHEMA
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "RunConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
+        """From `to_dict()`'s form, or from one flat dict of settings (the learner's among them)."""
+        d = dict(d)
+        d.pop("schema", None)
+        nested = d.pop("learner", None) or {}
+        if not isinstance(nested, dict):
+            raise ValueError(f"'learner' must be a dict of settings, got {type(nested).__name__}")
+        run_names = {s.name for s in specs(cls)}
+        method = get_method(str(d.get("method", cls.method)))
+        learner_cls = method.learner_class.Config
+        flat_learner = {k: d.pop(k) for k in list(d) if k not in run_names and k in learner_cls.field_names()}
+        unknown = set(d) - run_names
+        unknown |= set(nested) - learner_cls.field_names()
         if unknown:
             raise ValueError(f"unknown configuration field(s): {', '.join(sorted(unknown))}")
-        d = dict(d)
-        if "hidden" in d:
-            d["hidden"] = tuple(d["hidden"])
-        return cls(**d)
+        values = {**nested, **flat_learner}
+        if isinstance(values.get("hidden"), list):
+            values["hidden"] = tuple(values["hidden"])
+        return cls(**d, learner=learner_cls(**values))
+
+
+# ----------------------------------------------------------------------------- names people read
+def switches(config: RunConfig) -> dict:
+    """The learner's switches (its settings that are not sizes): what makes one method another."""
+    learner = config.learner if config.learner is not None else config.learner_config_class()
+    return {s.name: getattr(learner, s.name) for s in specs(type(learner)) if not s.advanced}
+
+
+def configuration_label(config: RunConfig) -> str:
+    """A configuration's name: its method's title when the switches are the method's; another method's
+    title when they are that method's (BCO(α) with ABCO's switches is ABCO); else the method with what
+    differs spelled out ("BCO(α) + sampling iupe + explore labels")."""
+    from ifo.methods import METHODS
+
+    cfg = config.resolved()
+    mine, method = switches(cfg), get_method(cfg.method)
+    same_family = [m for m in METHODS.values() if m.learner == method.learner and
+                   m.fixed_iterations == method.fixed_iterations and m.sees_expert_actions == method.sees_expert_actions]
+    for m in [method] + same_family:
+        if switches(replace(cfg, method=m.name, learner=None).resolved()) == mine:
+            return m.title
+    preset = switches(replace(cfg, learner=None).resolved())
+    changed = []
+    for s in specs(type(cfg.learner)):
+        if s.name in mine and mine[s.name] != preset[s.name]:
+            value, name = mine[s.name], s.name.replace("_", " ")
+            changed.append(f"{'' if value else 'no '}{name}" if isinstance(value, bool) else f"{name} {value}")
+    return f"{method.title} + " + " + ".join(changed)

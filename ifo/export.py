@@ -447,44 +447,74 @@ def slide_pack(records: Sequence[dict], config: dict, action_names: Sequence[str
     return buf.getvalue()
 
 
+# What the figures, metrics.csv and README read without a default: a record without one is refused
+# with a clear message rather than a KeyError deep inside plotting.
+RECORD_FIELDS = ("iteration", "evaluation", "policy", "seconds")
+EVALUATION_FIELDS = ("aer", "aer_std", "goal_rate")
+
+
+def check_records(records, where: str = "the run") -> None:
+    """ValueError naming the first record that lacks a field the export needs."""
+    if not isinstance(records, list):
+        raise ValueError(f"{where}: the records are not a list")
+    for k, r in enumerate(records, 1):
+        missing = [f for f in RECORD_FIELDS if not isinstance(r, dict) or f not in r]
+        if not missing and isinstance(r["evaluation"], dict):
+            missing = [f"evaluation.{f}" for f in EVALUATION_FIELDS if f not in r["evaluation"]]
+        elif not missing:
+            missing = ["evaluation (not a mapping)"]
+        if missing:
+            raise ValueError(f"{where}: record {k} of {len(records)} lacks {', '.join(missing)}; "
+                             "it was not saved by this version of IfO Lab, or it is damaged")
+
+
 def load_run_files(run_dir: str | os.PathLike) -> tuple[list[dict], dict, tuple[str, ...]]:
-    """(records, config dict, action names) of a saved run, read from its files: no environment is
-    built and no data collected, so it is instant even for a big maze run."""
+    """(records, config dict, action names) of a saved run, read from its files (`ifo.checkpoint`):
+    no environment is built and no data collected, so it is instant even for a big maze run.
+    FileNotFoundError without a run there; ValueError (CheckpointError) saying what is wrong otherwise."""
+    from ifo import checkpoint
     from ifo.config import RunConfig
     from ifo.envs import get_env
 
     d = Path(run_dir)
     if not d.is_dir():
         raise FileNotFoundError(f"{d} is not a folder")
-    if not (d / "LATEST").exists() or not (d / "config.json").exists():
-        raise FileNotFoundError(f"{d} holds no saved run (no LATEST or config.json file)")
-    try:
-        config = json.loads((d / "config.json").read_text())
-        RunConfig.from_dict(config)  # unknown fields -> ValueError
-        records = json.loads((d / (d / "LATEST").read_text().strip() / "records.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{d}: cannot read the saved run ({exc})") from exc
-    return records, config, tuple(get_env(config["env"]).action_names)
+    ckpt = checkpoint.load(d, with_arrays=False)  # NoRun is a FileNotFoundError, DamagedRun a ValueError
+    config = ckpt.config
+    if not isinstance(config.get("env"), str):
+        raise ValueError(f"{d}: the saved configuration names no environment ('env')")
+    RunConfig.from_dict(config)  # unknown fields -> ValueError
+    check_records(ckpt.records, str(d))
+    return ckpt.records, config, tuple(get_env(config["env"]).action_names)
 
 
 def export_run(run_dir: str | os.PathLike, out_dir: str | os.PathLike, formats: Sequence[str] = FORMATS,
                *, as_zip: bool = False) -> list[Path]:
     """Write a saved run's slide pack to `out_dir` (figures/, metrics.csv, config.json, README.txt;
-    each file atomically) or, with `as_zip`, one `<run name>-slides.zip` there. Returns the paths."""
+    each file atomically) or, with `as_zip`, one `<run name>-slides.zip` there. Returns the paths.
+    ValueError (no traceback in the CLI) for a run without iterations, records that lack a field,
+    or an `out_dir` that is or lies under a file."""
+    from ifo.checkpoint import blocking_file
     from ifo.io import atomic_write_bytes
 
     records, config, names = load_run_files(run_dir)
     if not records:
         raise ValueError(f"{run_dir} has no iterations yet: nothing to draw")
     out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} is a file, not a folder")
-    if as_zip:
-        path = out / f"{Path(run_dir).resolve().name}-slides.zip"
-        atomic_write_bytes(path, slide_pack(records, config, names, formats, run_dir=str(run_dir)))
-        return [path]
+    blocker = blocking_file(out)
+    if blocker is not None:
+        where = "is a file" if blocker == out.absolute() else f"lies under {blocker}, which is a file"
+        raise ValueError(f"--out {out} {where}, not a folder")
+    try:
+        if as_zip:
+            path = out / f"{Path(run_dir).resolve().name}-slides.zip"
+            atomic_write_bytes(path, slide_pack(records, config, names, formats, run_dir=str(run_dir)))
+            return [path]
+        files = pack_files(records, config, names, formats, run_dir=str(run_dir))
+    except KeyError as exc:  # a field check_records does not know the figures need
+        raise ValueError(f"{run_dir}: the saved records lack {exc} (needed for the figures)") from exc
     written = []
-    for rel, data in pack_files(records, config, names, formats, run_dir=str(run_dir)).items():
+    for rel, data in files.items():
         atomic_write_bytes(out / rel, data)
         written.append(out / rel)
     return written
@@ -492,4 +522,4 @@ def export_run(run_dir: str | os.PathLike, out_dir: str | os.PathLike, formats: 
 
 __all__ = ["FORMATS", "MIME", "NO_CHROMIUM", "ExportError", "ExportUnavailable", "find_chromium", "export_problem",
            "figure_bytes", "slide_theme", "run_figures", "metrics_csv", "pack_files", "slide_pack", "load_run_files",
-           "export_run", "render_all", "shutdown"]
+           "check_records", "export_run", "render_all", "shutdown"]

@@ -1,6 +1,7 @@
 """Safe reading and writing: atomic replaces, and weights as plain arrays (no pickle)."""
 from __future__ import annotations
 
+import copy
 import json
 import os
 import tempfile
@@ -66,7 +67,8 @@ def load_state_dict(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], d
 
 
 def module_arrays(prefix: str, module: torch.nn.Module) -> dict[str, np.ndarray]:
-    return {f"{prefix}.{k}": v.detach().cpu().numpy() for k, v in module.state_dict().items()}
+    """Copies (not views): training on afterwards must not change what was taken."""
+    return {f"{prefix}.{k}": v.detach().cpu().numpy().copy() for k, v in module.state_dict().items()}
 
 
 def load_module_arrays(prefix: str, module: torch.nn.Module, arrays: dict[str, np.ndarray]) -> None:
@@ -81,8 +83,8 @@ def optimizer_arrays(prefix: str, optimizer: torch.optim.Optimizer) -> tuple[dic
     arrays = {}
     for idx, slots in sd["state"].items():
         for key, value in slots.items():
-            arrays[f"{prefix}.{idx}.{key}"] = torch.as_tensor(value).detach().cpu().numpy()
-    return arrays, {"param_groups": sd["param_groups"]}
+            arrays[f"{prefix}.{idx}.{key}"] = torch.as_tensor(value).detach().cpu().numpy().copy()
+    return arrays, {"param_groups": copy.deepcopy(sd["param_groups"])}
 
 
 def load_optimizer_arrays(prefix: str, optimizer: torch.optim.Optimizer, arrays: dict[str, np.ndarray],

@@ -230,3 +230,33 @@ def feature_attention_map(model: nn.Module) -> torch.Tensor | None:
     if att is None or att.last_weights is None:
         return None
     return att.last_weights.mean(dim=(0, 1))
+
+
+@torch.no_grad()
+def gate_report(model: nn.Module, *inputs: torch.Tensor, max_samples: int = 512) -> list[dict] | None:
+    """What each gated attention block (attention="gated") does on these inputs: its gamma, and
+    the size of what it adds, mean |gamma * (W_v h + b)| over mean |h| (0: the block is the
+    identity). None for models without such blocks. Runs the model on at most `max_samples`."""
+    blocks = [m for m in model.modules() if isinstance(m, GatedResidual)]
+    if not blocks:
+        return None
+    seen: dict[int, float] = {}
+
+    def hook(index):
+        def record(module, args, output):
+            h = args[0]
+            added = module.gamma * module.value(h)
+            seen[index] = float(added.abs().mean() / h.abs().mean().clamp_min(1e-12))
+        return record
+
+    handles = [b.register_forward_hook(hook(k)) for k, b in enumerate(blocks)]
+    was_training = model.training
+    try:
+        model.eval()
+        model(*(torch.as_tensor(x[:max_samples], dtype=torch.float32) for x in inputs))
+    finally:
+        for h in handles:
+            h.remove()
+        model.train(was_training)
+    return [{"block": k, "gamma": round(float(b.gamma), 6), "effect": round(seen.get(k, 0.0), 6)}
+            for k, b in enumerate(blocks)]

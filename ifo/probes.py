@@ -252,3 +252,45 @@ def vector_attention(model: nn.Module) -> list | None:
 
 __all__ = ["maze_probes", "maze_probe_frames", "default_target_layer", "grad_cam_maps", "grad_cam_probe_record",
            "action_mean_image_distances", "vector_attention", "MAP_RESOLUTION"]
+
+
+# --------------------------------------------------------------------------- Figs 8.2, 8.3, Table 8.1
+
+POLICY_MAP_CELLS = 20  # the thesis discretised MountainCar into a 20 x 20 table
+
+
+def _softmax(x: np.ndarray) -> np.ndarray:
+    z = np.exp(x - x.max(-1, keepdims=True))
+    return z / z.sum(-1, keepdims=True)
+
+
+def policy_map_record(probabilities, axes, reference: nn.Module | None = None, cells: int = POLICY_MAP_CELLS) -> dict:
+    """record["policy_map"]: the policy over a cells x cells grid of two state variables.
+
+    `probabilities(states) -> (n, |A|)` is the learner's policy; `axes` is ((index, name, low, high),
+    (index, name, low, high)) from the EnvSpec (other variables 0). `reference` is a network whose
+    outputs are Q-values or logits (the shipped DQN expert): its softmax is pi*, as Table 8.1 uses.
+
+        kl        mean over the grid of KL(pi* || pi)
+        onehot_kl mean of KL(onehot(argmax pi*) || pi) = -log pi(argmax pi* | s): the greedy comparison
+    """
+    (ix, x_name, x_lo, x_hi), (iy, y_name, y_lo, y_hi) = axes
+    xs, ys = np.linspace(x_lo, x_hi, cells), np.linspace(y_lo, y_hi, cells)
+    gx, gy = np.meshgrid(xs, ys)  # rows: y, columns: x
+    states = np.zeros((cells * cells, max(ix, iy) + 1), dtype=np.float32)
+    states[:, ix], states[:, iy] = gx.ravel(), gy.ravel()
+    p = np.clip(np.asarray(probabilities(states), dtype=np.float64), 1e-8, 1.0)
+    out = {"x_name": x_name, "y_name": y_name, "x": [round(float(v), 5) for v in xs],
+           "y": [round(float(v), 5) for v in ys],
+           "action": p.argmax(-1).reshape(cells, cells).tolist(),
+           "probability": np.round(p.max(-1), 4).reshape(cells, cells).tolist(),
+           "reference_action": None, "kl": None, "onehot_kl": None}
+    if reference is not None:
+        with torch.no_grad():
+            q = reference(torch.as_tensor(states)).numpy().astype(np.float64)
+        ref = np.clip(_softmax(q), 1e-8, 1.0)
+        best = ref.argmax(-1)
+        out["reference_action"] = best.reshape(cells, cells).tolist()
+        out["kl"] = round(float(np.mean(np.sum(ref * (np.log(ref) - np.log(p)), -1))), 5)
+        out["onehot_kl"] = round(float(np.mean(-np.log(p[np.arange(len(p)), best]))), 5)
+    return out

@@ -106,12 +106,13 @@ def run_row(row: Row, env: str, seed: int, iterations: int | None, **extra) -> d
         aer = refs.get(f"{row.method}_aer")
         return {"aer": aer, "performance": 1.0 if row.method == "expert" else 0.0, "seconds": 0.0}
     start = time.perf_counter()
-    run = Run(RunConfig(env=env, method=row.method, seed=seed, iterations=iterations, **row.overrides, **extra))
+    run = Run(RunConfig.from_dict({"env": env, "method": row.method, "seed": seed, "iterations": iterations,
+                                   **row.overrides, **extra}))
     run.run()
     ev = run.records[-1]["evaluation"]
     out = {"aer": ev["aer"], "performance": ev["performance"], "seconds": time.perf_counter() - start,
            "seconds_per_iteration": float(np.mean([r["seconds"]["total"] for r in run.records]))}
-    if run.config.explore_rollouts or run.config.explore_labels:
+    if any(getattr(run.config.learner, switch, False) for switch in ("explore_labels", "explore_rollouts")):
         sampled = run.evaluate(explore=True)
         out["aer_sampled"], out["performance_sampled"] = sampled["aer"], sampled["performance"]
     return out

@@ -98,7 +98,7 @@ def policy_rollout_frames(run, seed: int = 0, max_frames: int | None = None,
     """One evaluation-style episode of the run's current policy (MAP actions, or sampled when the
     run measures AER with sampled actions): (RGB frames, return)."""
     cfg, max_frames = run.config, max_frames or MAX_FRAMES
-    rng = np.random.default_rng([cfg.seed, 3, seed])
+    rng = run.ctx.seeds.rng("video", seed)
     act = lambda obs: run.act(np.asarray(obs)[None], sample=cfg.eval_explore, rng=rng)[0]  # noqa: E731
     if run.spec.is_maze:
         return _maze_episode(run.spec, act, seed, cfg.obs_mode, cfg.image_size, max_frames, size)
@@ -119,6 +119,6 @@ def expert_rollout_frames(env: str, seed: int = 0, max_frames: int | None = None
 
 
 def _control_seed(seed: int) -> int:
-    from ifo.run import EVAL_SEED_BASE
+    from ifo.seeds import evaluation_seeds
 
-    return EVAL_SEED_BASE + int(seed)  # the first evaluation episode's start, as Run.evaluate uses
+    return int(evaluation_seeds(int(seed) + 1, maze=False)[-1])  # the first evaluation episode's start, as Run.evaluate uses

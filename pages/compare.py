@@ -78,7 +78,7 @@ flash = st.session_state.pop("compare.flash", None)
 if flash:
     (st.error if flash[0] == "error" else st.success)(flash[1])
 
-saved = storage.list_runs(user)
+saved = [r for r in storage.list_runs(user) if not r.damaged]  # a damaged run has no curve to compare
 chosen = st.multiselect("Also compare saved runs", [r.run_id for r in saved], key="compare.saved",
                         format_func=lambda rid: next((r.label for r in saved if r.run_id == rid), rid),
                         help="Runs from Your runs (including ones queued before the server restarted).")

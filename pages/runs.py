@@ -3,7 +3,8 @@ finished example runs shipped with the app, and your own demonstrations.
 
 Open sends a run to the step page (`?run=<id>&user=<id>`), where it can be scrubbed and
 trained further; rename, delete (with a confirmation) and download (a ZIP of its folder)
-act on the saved folder through `ifo.ui.storage`. Uploaded demonstrations are validated
+act on the saved folder through `ifo.ui.storage`. A damaged run is listed with what is wrong
+and can only be deleted. Uploaded demonstrations are validated
 before they replace anything; "Train" queues a run on them in the background queue.
 """
 import streamlit as st
@@ -34,7 +35,7 @@ def do_rename(run_id: str) -> None:
     try:
         storage.rename_run(user, run_id, st.session_state.get(f"runs.name.{run_id}", ""))
     except (ValueError, FileNotFoundError) as e:
-        flash("error", f"Could not rename the run: {e}")
+        flash("error", f"Could not rename the run: {getattr(e, 'reason', e)}")  # reason: no server path
     else:
         flash("success", "Renamed.")
 
@@ -43,7 +44,7 @@ def do_delete(run_id: str, label: str) -> None:
     try:
         storage.delete_run(user, run_id)
     except (ValueError, FileNotFoundError) as e:
-        flash("error", f"Could not delete the run: {e}")
+        flash("error", f"Could not delete the run: {getattr(e, 'reason', e)}")
     else:
         flash("success", f"Deleted {label}.")
 
@@ -88,9 +89,16 @@ for saved in runs:
     with st.container(border=True):
         info, actions = st.columns([3, 2], vertical_alignment="center")
         info.markdown(f"**{saved.label}**")
-        info.caption(summary(saved.config, saved.iterations_done, saved.last))
         b_open, b_zip, b_rename, b_delete = actions.columns(4)
         busy = rid in training_now
+        if saved.damaged:  # it cannot be opened, renamed or downloaded; it can be deleted
+            info.caption(f":material/warning: This run is damaged and cannot be opened: {saved.damaged}")
+            with b_delete.popover("Delete", icon=":material/delete:"):
+                st.markdown(f"Delete **{saved.label}** for good?")
+                st.button("Yes, delete it", key=f"runs.delete.{rid}", type="primary", on_click=do_delete,
+                          args=(rid, saved.label), disabled=busy)
+            continue
+        info.caption(summary(saved.config, saved.iterations_done, saved.last))
         if busy:
             info.caption(":material/hourglass_top: training in the background: open or delete it once it ends "
                          "(or cancel it below).")
@@ -177,13 +185,13 @@ for d in demos:
                                       index=list(METHODS).index("iupe"))
         if go.button("Train", key=f"runs.train.{d.name}", type="primary",
                      help="Queue a run on these demonstrations; it trains in the background and appears above."):
-            if not METHODS[method].uses_idm and not s.get("has_actions"):
+            if METHODS[method].sees_expert_actions and not s.get("has_actions"):
                 st.error("BC learns from the expert's actions, and this file has none: choose an IfO method.")
             else:
                 try:
-                    config = RunConfig(env=d.env, method=method, demos=str(d.path),
-                                       obs_mode=storage.demos_obs_mode(d.path), expert_episodes=s.get("episodes"),
-                                       **fast_overrides()).resolved()
+                    config = RunConfig.from_dict(dict(env=d.env, method=method, demos=str(d.path),
+                                                      obs_mode=storage.demos_obs_mode(d.path),
+                                                      expert_episodes=s.get("episodes"), **fast_overrides())).resolved()
                     label = f"{method_label(method)} on {env_label(d.env)} · {d.name}"
                     queue.submit(user, config, label=label, group=label)
                 except (QueueFull, ValueError) as e:

@@ -39,7 +39,8 @@ if run is None:
     st.stop()
 
 controls = st.container()
-sizes = dict(pre_size=len(run.pre.train) if run.pre is not None else None, expert_size=len(run.expert))
+sizes = run.learner.sizes()
+boxes = {p.name: p.box for p in run.learner.phases}
 
 
 @st.fragment(run_every=slot.tick)
@@ -53,7 +54,8 @@ def live():
         last["phase"], last["draws"] = phase, last["draws"] + 1
         # a key per draw: a phase may come back within one iteration (the maze's attention probes),
         # and two unkeyed charts with the same figure would share one auto-generated id
-        diagram_area.plotly_chart(loop_diagram(run.records[-1] if run.records else None, phase, **sizes),
+        diagram_area.plotly_chart(loop_diagram(run.records[-1] if run.records else None, phase, **sizes,
+                                               phase_boxes=boxes, doing=run.phase_text(phase)),
                                   key=f"step.diagram.live.{last['draws']}", config=CHART_CONFIG)
 
     if slot.advance(progress, on_phase):  # a Play just ended: redraw the buttons, stop the timer
@@ -82,9 +84,10 @@ def live():
     view = [r for r in records if shown is None or r["iteration"] <= shown]
     if "metrics" not in hide:
         metrics_row(view)
-    draw_panels(active_panels(run, hide), PanelContext(slot, run, records, shown))
-    if not run.method.uses_idm:
-        st.info("BC learns from the expert's true actions, so there is no IDM to show.")
+    draw_panels(active_panels(records, hide), PanelContext(slot, run, records, shown))
+    if run.method.sees_expert_actions:
+        st.info(f"{run.method.title} learns from the expert's true actions: it is the reference that is allowed "
+                "to see them, so there is no IDM to show.")
 
 
 live()

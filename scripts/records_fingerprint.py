@@ -1,5 +1,7 @@
 """Fingerprints of the records a set of small runs produce: one line per configuration with a
-hash of its records (timings left out) and of its final policy weights.
+hash of its evaluations (AER, Performance, returns of every iteration), of its final policy
+weights, and of its whole records (timings left out; this one also moves when a change only
+adds a new diagnostic field).
 
 A change that must not move a number (a refactor, a speed-up "with the same numbers") is
 checked by running this before and after it and comparing the lines:
@@ -46,20 +48,19 @@ def digest(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def fingerprint(case: dict) -> tuple[str, str]:
-    run = Run(RunConfig(**{**TINY, **case}))
+def fingerprint(case: dict) -> tuple[str, str, str]:
+    run = Run(RunConfig.from_dict({**TINY, **case}))
     run.run()
     records = [{k: v for k, v in r.items() if k != "seconds"} for r in run.records]
-    policy = run.learner.policy if hasattr(run, "learner") else run.policy
-    weights = hashlib.sha256(b"".join(v.detach().numpy().tobytes() for v in policy.state_dict().values()))
-    return digest(records), weights.hexdigest()[:16]
+    weights = hashlib.sha256(b"".join(v.detach().numpy().tobytes() for v in run.policy.state_dict().values()))
+    return digest([r["evaluation"] for r in records]), weights.hexdigest()[:16], digest(records)
 
 
 def main(names: list[str]) -> None:
     limit_threads()
     for name in names or CASES:
-        records, weights = fingerprint(CASES[name])
-        print(f"{name:28s} records {records}  policy {weights}", flush=True)
+        evaluation, weights, records = fingerprint(CASES[name])
+        print(f"{name:28s} evaluation {evaluation}  policy {weights}  records {records}", flush=True)
 
 
 if __name__ == "__main__":

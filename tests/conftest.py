@@ -14,7 +14,7 @@ def make_tiny_config(**overrides) -> RunConfig:
     """A CartPole run small enough for a unit test (a second or two per iteration)."""
     base = dict(env="cartpole", method="bco-alpha", iterations=2, pre_size=2000, episodes_per_iteration=10,
                 eval_episodes=10, policy_epochs=2, expert_episodes=2)
-    return RunConfig(**{**base, **overrides})
+    return RunConfig.from_dict({**base, **overrides})
 
 
 @pytest.fixture

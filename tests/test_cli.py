@@ -43,7 +43,15 @@ def test_gymnasium_ids_and_aliases_are_accepted(tmp_path):
     (["--env", "pong", "--method", "bco"], "unknown environment 'pong'"),
     (["--env", "cartpole", "--method", "dagger"], "unknown method 'dagger'"),
     (["--env", "cartpole", "--method", "sail"], "planned but not implemented"),
-    (["--env", "cartpole", "--method", "bco-alpha", "--iterations", "0"], "iterations must be a whole number >= 1"),
+    (["--env", "cartpole", "--method", "bco-alpha", "--iterations", "0"], "iterations must be at least 1, got 0"),
+    (["--env", "cartpole", "--method", "bco-alpha", "--seed", "-1"], "seed must be at least 0, got -1"),
+    (["--env", "cartpole", "--method", "bco-alpha", "--seed", str(2**64)], "seed must be at most 4294967295"),
+    (["--env", "cartpole", "--method", "bco-alpha", "--pre-size", "1"], "pre_size must be at least 10, got 1"),
+    (["--env", "cartpole", "--method", "bco-alpha", "--seed", "x"], "expected a whole number, got 'x'"),
+    (["--env", "cartpole", "--method", "iupe", "--td-updates", "3"], "--td-updates does not apply to IUPE"),
+    (["--env", "cartpole", "--method", "iupe", "--expert-episodes", "5000"],
+     "expert_episodes is 5000, but the demonstrations hold only"),
+    (["--env", "cartpole", "--method", "iupe", "--sampling", "everything"], "invalid choice: 'everything'"),
     (["--env", "cartpole", "--method", "bco", "--demos", "/nonexistent/demos.npz"], "no such file"),
 ])
 def test_bad_input_gives_one_clear_line_and_exit_2(args, message):
@@ -87,4 +95,36 @@ def test_train_takes_the_same_defaults_as_the_app_and_the_maze_protocol():
     args = build_parser().parse_args(["train", "--env", "maze5", "--method", "iupe", "--policy-epochs", "3",
                                       "--maze-eval-layouts", "demonstration", "--deadlock-guard", "true"])
     cfg = config_from_args(args)
-    assert (cfg.policy_epochs, cfg.maze_eval_layouts, cfg.deadlock_guard) == (3, "demonstration", True)
+    assert (cfg.learner.policy_epochs, cfg.maze_eval_layouts, cfg.deadlock_guard) == (3, "demonstration", True)
+
+
+def test_every_setting_has_a_flag_generated_from_its_declaration():
+    from ifo.cli import build_parser
+    from ifo.config import RunConfig
+    from ifo.learners import LEARNERS
+    from ifo.options import specs
+
+    train = next(a for a in build_parser()._subparsers._group_actions[0].choices.values() if a.prog.endswith("train"))
+    flags = {opt for action in train._actions for opt in action.option_strings}
+    for cls in [RunConfig] + [learner.Config for learner in LEARNERS.values()]:
+        for s in specs(cls):
+            assert s.flag in flags, s.flag
+            assert s.help  # one plain sentence, shown by --help and the app
+
+
+def test_train_refuses_to_overwrite_a_run_before_training(tmp_path):
+    out = tmp_path / "run"
+    assert run_cli("train", "--env", "cartpole", "--method", "bco", "--quiet", "--out", str(out), *FAST).returncode == 0
+    before = sorted(p.name for p in out.iterdir())
+    res = run_cli("train", "--env", "cartpole", "--method", "bco", "--quiet", "--out", str(out), *FAST)
+    assert res.returncode == 2 and "--overwrite" in res.stderr and "iteration" not in res.stdout
+    assert sorted(p.name for p in out.iterdir()) == before  # nothing touched
+    mine = out / "ckpt-mine"
+    mine.mkdir()
+    res = run_cli("train", "--env", "cartpole", "--method", "bco", "--quiet", "--out", str(out), "--overwrite", *FAST)
+    assert res.returncode == 0, res.stderr
+    assert mine.is_dir()  # a user's own folder is never deleted
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    res = run_cli("train", "--env", "cartpole", "--method", "bco", "--quiet", "--out", str(a_file / "run"), *FAST)
+    assert res.returncode == 2 and "iteration" not in res.stdout and "Traceback" not in res.stderr

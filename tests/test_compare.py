@@ -28,9 +28,11 @@ def test_thesis_numbers_follow_the_configuration_not_its_name():
     assert cp.thesis_numbers(RunConfig(env="cartpole", method="bco-alpha"))[:2] == (1.135, 500.0)
     # the loop with ABCO's switches is ABCO
     abco = cp.switch_config("maze5", attention=True, sampling="abco", exploration=False)
-    assert abco.thesis[:2] == (0.960, 0.932) and abco.group.startswith("BCO(α) + attention (gated) + sampling abco")
+    assert abco.thesis[:2] == (0.960, 0.932) and abco.group.startswith("ABCO")  # named by what it is
+    mixed = cp.switch_config("maze5", attention=False, sampling="iupe", exploration=True)
+    assert mixed.group.startswith("BCO(α) + sampling iupe + explore labels + explore rollouts")
     # a combination the thesis never ran, or an environment it has no column for
-    assert cp.thesis_numbers(RunConfig(env="cartpole", method="bco-alpha", sampling="iupe")) is None
+    assert cp.thesis_numbers(RunConfig.from_dict(dict(env="cartpole", method="bco-alpha", sampling="iupe"))) is None
     assert cp.thesis_numbers(RunConfig(env="lunarlander", method="iupe")) is None
 
 

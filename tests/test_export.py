@@ -6,6 +6,7 @@ One small real CartPole run (two iterations) is trained once for the whole modul
 import csv
 import io
 import json
+import re
 import struct
 import subprocess
 import sys
@@ -17,7 +18,7 @@ import plotly.graph_objects as go
 import pytest
 from streamlit.testing.v1 import AppTest
 
-from ifo import export
+from ifo import checkpoint, export
 from ifo.cli import main
 from ifo.config import RunConfig
 from ifo.envs import get_env
@@ -30,8 +31,9 @@ BCO_ALPHA_FIGURES = ["aer", "performance", "idm_predictions", "idm_predictions_o
 
 @pytest.fixture(scope="module")
 def saved_run(tmp_path_factory):
-    run = Run(RunConfig(env="cartpole", method="bco-alpha", iterations=2, pre_size=2000, episodes_per_iteration=10,
-                        eval_episodes=10, policy_epochs=2, expert_episodes=2))
+    run = Run(RunConfig.from_dict(dict(env="cartpole", method="bco-alpha", iterations=2, pre_size=2000,
+                                       episodes_per_iteration=10, eval_episodes=10, policy_epochs=2,
+                                       expert_episodes=2)))
     run.run()
     directory = run.save(tmp_path_factory.mktemp("export") / "run")
     return run, directory
@@ -169,6 +171,68 @@ def test_cli_bad_input_exit_2(saved_run, tmp_path, capsys):
     assert "holds no saved run" in capsys.readouterr().err
     assert main(["export", str(directory), "--out", str(tmp_path / "o"), "--formats", "svg,gif"]) == 2
     assert "--formats must be" in capsys.readouterr().err
+
+
+def _edited_run(saved_run, path, *, records=None, config=None):
+    """A run folder holding the saved run's records/config as edited (ifo.checkpoint writes it)."""
+    run, _ = saved_run
+    records = json.loads(json.dumps(run.records)) if records is None else records
+    checkpoint.save(path, config=run.config.to_dict() if config is None else config, records=records,
+                    arrays={}, meta={"iteration": len(records)}, parent=None)
+    return path
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda r: r.pop("evaluation"), "record 2 of 2 lacks evaluation;"),
+    (lambda r: r["evaluation"].pop("aer"), "record 2 of 2 lacks evaluation.aer;"),
+    (lambda r: r.pop("policy"), "record 2 of 2 lacks policy;"),
+    (lambda r: r.update(evaluation=[1, 2]), "record 2 of 2 lacks evaluation (not a mapping)"),
+])
+def test_records_that_lack_a_field_give_one_clear_error(saved_run, tmp_path, capsys, edit, message):
+    run, _ = saved_run
+    records = json.loads(json.dumps(run.records))
+    edit(records[-1])
+    path = _edited_run(saved_run, tmp_path / "edited", records=records)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        export.load_run_files(path)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        export.export_run(path, tmp_path / "out", formats=["svg"])
+    assert main(["export", str(path), "--out", str(tmp_path / "o"), "--formats", "svg"]) == 2
+    assert message in one_error_line(capsys)
+    assert not (tmp_path / "o").exists() and not (tmp_path / "out").exists()
+
+
+def test_a_config_without_env_a_damaged_run_and_out_under_a_file_give_clear_errors(saved_run, tmp_path, capsys):
+    run, directory = saved_run
+    config = run.config.to_dict()
+    del config["env"]
+    no_env = _edited_run(saved_run, tmp_path / "no-env", config=config)
+    with pytest.raises(ValueError, match=r"the saved configuration names no environment \('env'\)"):
+        export.load_run_files(no_env)
+    assert main(["export", str(no_env), "--out", str(tmp_path / "o")]) == 2
+    assert "names no environment" in one_error_line(capsys)
+
+    damaged = _edited_run(saved_run, tmp_path / "damaged")
+    (damaged / "LATEST").write_text("/etc")
+    with pytest.raises(checkpoint.DamagedRun, match="LATEST does not name a checkpoint of this folder"):
+        export.load_run_files(damaged)
+    assert main(["export", str(damaged), "--out", str(tmp_path / "o")]) == 2
+    assert "LATEST does not name a checkpoint" in one_error_line(capsys)
+
+    (tmp_path / "a-file").write_text("x")
+    with pytest.raises(ValueError, match=r"--out .*a-file/slides lies under .*a-file, which is a file, not a folder"):
+        export.export_run(directory, tmp_path / "a-file" / "slides", formats=["svg"])
+    with pytest.raises(ValueError, match=r"--out .*a-file is a file, not a folder"):
+        export.export_run(directory, tmp_path / "a-file", formats=["svg"], as_zip=True)
+    assert main(["export", str(directory), "--out", str(tmp_path / "a-file" / "slides"), "--formats", "svg"]) == 2
+    assert "lies under" in one_error_line(capsys)
+    assert (tmp_path / "a-file").read_text() == "x"
 
 
 # ----------------------------------------------------------------------------- no Chromium

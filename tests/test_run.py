@@ -5,10 +5,12 @@ import numpy as np
 import pytest
 import torch
 
-import ifo.run as run_mod
+import ifo.learners.bco as bco_mod
 from ifo.config import RunConfig
 from ifo.data.shipped import load_shipped_demonstrations
 from ifo.envs import get_env
+from ifo.learners import StepCancelled
+from ifo.methods import METHODS
 from ifo.run import Run, RunFinished
 
 
@@ -68,13 +70,15 @@ def test_a_crash_mid_save_leaves_the_previous_save_intact(tiny_config, tmp_path,
     run.save(tmp_path / "run")
     run.step()
 
-    real = run_mod.atomic_write_bytes
+    import ifo.checkpoint as checkpoint
 
-    def crash(path, data):
+    real = checkpoint._write_new
+
+    def crash(path, data, *args, **kwargs):
         real(path, data[: len(data) // 3])  # half-written file...
         raise OSError("disk full")  # ...then the process dies
 
-    monkeypatch.setattr(run_mod, "atomic_write_bytes", crash)
+    monkeypatch.setattr(checkpoint, "_write_new", crash)
     with pytest.raises(OSError):
         run.save(tmp_path / "run")
     monkeypatch.undo()
@@ -88,19 +92,24 @@ def test_loading_a_folder_without_a_run_says_so(tmp_path):
         Run.load(tmp_path)
 
 
-@pytest.mark.parametrize("method", ["bco", "bco-alpha"])
-def test_ifo_methods_never_learn_from_the_expert_actions(tiny_config, method):
+IFO_METHODS = [m for m, method in METHODS.items() if not method.sees_expert_actions]
+
+
+@pytest.mark.parametrize("env,method", [("cartpole", m) for m in IFO_METHODS] + [("maze3", "abco"), ("maze3", "iupe")])
+def test_ifo_methods_never_learn_from_the_expert_actions(tiny_config, env, method):
     """Whatever the hidden actions say (true, shuffled or absent), an IfO learner learns the same."""
-    cfg = tiny_config(method=method)
-    spec = get_env("cartpole")
+    cfg = tiny_config(method=method, env=env, **({"expert_episodes": 5, "pre_size": 400, "attention_probes": False}
+                                                 if env == "maze3" else {}))
+    spec = get_env(env)
     outcomes, diagnostics = [], []
     for variant in ("true", "shuffled", "absent"):
-        demos = load_shipped_demonstrations(spec)
+        demos = load_shipped_demonstrations(spec, episodes=cfg.expert_episodes)
         if variant == "shuffled":
             demos.hidden_actions = np.random.default_rng(1).permutation(demos.hidden_actions)
         elif variant == "absent":
             demos.hidden_actions = None
         run = Run(cfg, demos=demos)
+        assert run.ctx.expert_actions is None  # the learner's context holds no actions at all
         run.run()
         diagnostics.append("expert_accuracy" in run.records[0]["idm"])
         outcomes.append((learned_weights(run), [r["evaluation"]["returns"] for r in run.records],
@@ -133,24 +142,27 @@ def test_stepping_past_the_end_is_refused(tiny_config):
 
 
 @pytest.mark.parametrize("field,value,message", [
-    ("iterations", 0, "iterations must be a whole number >= 1"),
-    ("eval_episodes", -5, "eval_episodes must be"),
-    ("lr", 0.0, "lr must be between"),
+    ("iterations", 0, "iterations must be at least 1"),
+    ("eval_episodes", -5, "eval_episodes must be at least 1"),
+    ("lr", 0.0, "lr must be at least"),
+    ("seed", -1, "seed must be at least 0"),
+    ("seed", 2**64, "seed must be at most 4294967295"),
+    ("pre_size", 1, "pre_size must be at least 10"),
     ("attention", "magic", "attention must be one of"),
     ("sampling", "all", "sampling must be one of"),
-    ("method", "cril", "planned but not implemented"),
+    ("method", "sail", "planned but not implemented"),
     ("method", "dagger", "unknown method"),
     ("env", "pong", "unknown environment"),
 ])
 def test_impossible_settings_are_refused_with_a_clear_message(field, value, message):
     with pytest.raises(ValueError, match=message):
-        RunConfig(**{"env": "cartpole", "method": "bco-alpha", field: value}).resolved()
+        RunConfig.from_dict({"env": "cartpole", "method": "bco-alpha", field: value}).resolved()
 
 
 @pytest.mark.slow
 def test_a_short_bco_alpha_run_clearly_beats_the_random_policy():
-    cfg = RunConfig(env="cartpole", method="bco-alpha", iterations=3, seed=0, eval_episodes=30,
-                    episodes_per_iteration=20)
+    cfg = RunConfig.from_dict(dict(env="cartpole", method="bco-alpha", iterations=3, seed=0, eval_episodes=30,
+                                   episodes_per_iteration=20))
     run = Run(cfg)
     run.run()
     random_aer = get_env("cartpole").random_return
@@ -161,6 +173,7 @@ def test_a_short_bco_alpha_run_clearly_beats_the_random_policy():
 
 def test_phases_name_what_an_iteration_does(tiny_config):
     assert Run(tiny_config()).phases() == ["idm", "label", "policy", "rollout", "sampling", "evaluate"]
+    assert Run(tiny_config()).phase_text("idm") == "training the inverse dynamics model (IDM) on I_s"
     assert Run(tiny_config(method="bco")).phases() == ["idm", "label", "policy", "evaluate"]
     assert Run(tiny_config(method="bc")).phases() == ["policy", "evaluate"]
 
@@ -185,8 +198,8 @@ def _layout_keys(pool):
 def test_maze_worlds_keep_evaluation_layouts_where_the_protocol_says(protocol):
     from ifo.envs.maze import layout_pool
 
-    run = Run(RunConfig(env="maze5", method="iupe", pre_size=200, iterations=1, eval_episodes=5,
-                        maze_eval_layouts=protocol, attention_probes=False))
+    run = Run(RunConfig.from_dict(dict(env="maze5", method="iupe", pre_size=200, iterations=1, eval_episodes=5,
+                                       maze_eval_layouts=protocol, attention_probes=False)))
     training, evaluation = _layout_keys(run.pool), _layout_keys(run.eval_pool)
     demonstration_layouts = {layout.tobytes() for layout in layout_pool(5, "train")[:100]}
     if protocol == "held-out":  # never trained on, never demonstrated
@@ -199,14 +212,14 @@ def test_maze_worlds_keep_evaluation_layouts_where_the_protocol_says(protocol):
 def test_exploring_labels_draws_them_afresh_for_every_pass_over_the_demonstrations(
         tiny_config, monkeypatch, explore_labels):
     given = []
-    real_fit = run_mod.fit
+    real_fit = bco_mod.fit
 
     def spy(forward, module, optimizer, inputs, targets, *args, **kwargs):
         if module is run.policy:
             given.append(np.asarray(targets))
         return real_fit(forward, module, optimizer, inputs, targets, *args, **kwargs)
 
-    monkeypatch.setattr(run_mod, "fit", spy)
+    monkeypatch.setattr(bco_mod, "fit", spy)
     run = Run(tiny_config(method="iupe", policy_epochs=3, pre_size=300, explore_labels=explore_labels))
     record = run.step()
     (targets,) = given
@@ -226,3 +239,57 @@ def test_fit_refuses_a_label_set_per_epoch_that_does_not_match_the_epochs():
     with pytest.raises(ValueError, match="rows of targets"):
         fit(policy, policy, make_optimizer(policy, 1e-3), [np.zeros((8, 4), np.float32)],
             np.zeros((2, 8), int), 3, 4, torch.Generator())
+
+
+# --------------------------------------------------------------------------- an iteration is all or nothing
+def _fails_once(monkeypatch, module, name):
+    """Make `module.name` raise the first time it is called, then behave."""
+    real, calls = getattr(module, name), []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("the disk filled up")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, flaky)
+
+
+@pytest.mark.parametrize("method", ["bco-alpha", "iupe"])
+def test_a_failed_iteration_leaves_the_run_exactly_as_it_was(tiny_config, monkeypatch, method):
+    cfg = tiny_config(method=method, iterations=3)
+    straight = Run(cfg)
+    straight.run()
+
+    run = Run(cfg)
+    run.step()
+    before = learned_weights(run), run.learner.train_set
+    _fails_once(monkeypatch, bco_mod, "build_training_set")  # late in the round: IDM and policy have moved on
+    with pytest.raises(RuntimeError, match="disk filled up"):
+        run.step()
+    assert run.iteration == 1 and run.learner.train_set is before[1]
+    for k, v in before[0].items():
+        torch.testing.assert_close(learned_weights(run)[k], v)
+    run.run()  # the retry: same seed, same numbers
+    assert strip_timing(run.records) == strip_timing(straight.records)
+    for k, v in learned_weights(straight).items():
+        torch.testing.assert_close(learned_weights(run)[k], v)
+
+
+def test_a_cancelled_iteration_is_undone_and_can_be_retried(tiny_config):
+    cfg = tiny_config(iterations=2)
+    straight = Run(cfg)
+    straight.run()
+
+    def cancel_at_rollout(phase, iteration):
+        if phase == "rollout" and iteration == 2:
+            run.cancel()
+
+    run = Run(cfg, progress=cancel_at_rollout)
+    run.step()
+    with pytest.raises(StepCancelled):
+        run.step()
+    assert run.iteration == 1
+    run.progress = None
+    run.step()
+    assert strip_timing(run.records) == strip_timing(straight.records)

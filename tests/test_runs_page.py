@@ -94,6 +94,25 @@ def test_delete_removes_the_run_and_a_run_deleted_meanwhile_is_an_error(tiny_run
     assert len(at.error) == 1 and "no saved run 'run-b'" in at.error[0].value
 
 
+def test_a_damaged_run_is_listed_with_its_reason_and_can_be_deleted(tiny_run):
+    storage.save_run(tiny_run, USER, "run-ok", label="Healthy")
+    path = storage.save_run(tiny_run, USER, "run-bad", label="Broken run")
+    (path / "LATEST").write_text("../someone-else/ckpt-00001-abcdef12")
+    at = open_runs_page()
+    assert not at.exception and not at.error
+    shown = texts(at)
+    assert "Broken run" in shown and "Healthy" in shown
+    assert ("This run is damaged and cannot be opened: LATEST does not name a checkpoint of this folder "
+            "('../someone-else/ckpt-00001-abcdef12')") in shown
+    keys = {b.key for b in at.button}
+    assert "runs.delete.run-bad" in keys and "runs.open.run-bad" not in keys and "runs.rename.run-bad" not in keys
+    assert "runs.open.run-ok" in keys
+    at.button(key="runs.delete.run-bad").click().run()
+    assert not at.exception and not at.error
+    assert [s.value for s in at.success] == ["Deleted Broken run."]
+    assert [r.run_id for r in storage.list_runs(USER)] == ["run-ok"] and not path.exists()
+
+
 def test_open_goes_to_the_step_page_with_the_run_in_the_url(tiny_run):
     storage.save_run(tiny_run, USER, "run-a", label="To open")
     at = open_runs_page()

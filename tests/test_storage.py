@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import make_tiny_config
+from ifo import checkpoint
 from ifo.data.demos import DemoError
 from ifo.run import Run
 from ifo.ui import storage
@@ -75,8 +76,9 @@ def test_save_list_rename_zip_delete(tiny_run):
     assert storage.list_runs(USER)[0].label == "Renamed"
     with zipfile.ZipFile(io.BytesIO(storage.zip_run(USER, "run-one"))) as zf:
         names = zf.namelist()
-    assert "run-one/config.json" in names and "run-one/label.json" in names
+    assert "run-one/config.json" in names and "run-one/label.json" in names and "run-one/LATEST" in names
     assert any(n.endswith("state.npz") for n in names) and not any("/." in n for n in names)
+    assert len({n.split("/")[1] for n in names if "/ckpt-" in n}) == 1  # the latest checkpoint only
     storage.delete_run(USER, "run-one")
     assert storage.list_runs(USER) == []
     with pytest.raises(FileNotFoundError):
@@ -85,7 +87,7 @@ def test_save_list_rename_zip_delete(tiny_run):
         storage.get_run(USER, "run-one")
 
 
-def test_list_skips_half_written_runs(tiny_run, runs_root):
+def test_damaged_runs_are_listed_with_the_reason_and_half_written_ones_skipped(tiny_run, runs_root):
     storage.save_run(tiny_run, USER, "complete")
     user = runs_root / USER
     (user / "no-latest").mkdir()
@@ -94,8 +96,49 @@ def test_list_skips_half_written_runs(tiny_run, runs_root):
     broken.mkdir()
     (broken / "config.json").write_text(json.dumps(tiny_run.config.to_dict()))
     (broken / "LATEST").write_text("ckpt-missing")
+    storage.save_run(tiny_run, USER, "corrupt", label="Corrupt one")
+    corrupt = storage.run_path(USER, "corrupt")
+    (corrupt / checkpoint.latest(corrupt) / "records.json").write_text("[{")
+    storage.save_run(tiny_run, USER, "bad-label")
+    (user / "bad-label" / "label.json").write_text("{no")
     (user / ".complete.partial").mkdir()
-    assert [r.run_id for r in storage.list_runs(USER)] == ["complete"]
+    (user / "first-save").mkdir()  # a first save in progress (or killed): not a run yet
+    (user / "first-save" / ".lock").touch()
+    (user / "first-save" / ".ckpt-00001-abcdef12.partial").mkdir()
+
+    runs = {r.run_id: r for r in storage.list_runs(USER)}
+    assert set(runs) == {"complete", "no-latest", "dangling", "corrupt", "bad-label"}
+    assert runs["complete"].damaged is None and runs["complete"].iterations_done == 1
+    assert runs["dangling"].damaged == "LATEST does not name a checkpoint of this folder ('ckpt-missing')"
+    assert runs["dangling"].config["env"] == "cartpole"
+    assert runs["no-latest"].damaged.startswith("LATEST is missing")
+    assert "records.json is not valid JSON" in runs["corrupt"].damaged and runs["corrupt"].label == "Corrupt one"
+    assert runs["bad-label"].damaged is None and runs["bad-label"].label == "bad-label"  # shown by folder name
+    with pytest.raises(ValueError, match=r"the run 'corrupt' is damaged: .*records.json is not valid JSON"):
+        storage.get_run(USER, "corrupt")
+    with pytest.raises(ValueError, match="damaged"):
+        storage.zip_run(USER, "corrupt")
+    assert storage.last_records(runs["corrupt"]) == []
+    storage.rename_run(USER, "bad-label", "Fixed")
+    assert storage.get_run(USER, "bad-label").label == "Fixed"
+    for rid in ("no-latest", "dangling", "corrupt"):
+        storage.delete_run(USER, rid)
+    assert sorted(r.run_id for r in storage.list_runs(USER)) == ["bad-label", "complete"]
+    with pytest.raises(ValueError):
+        storage.delete_run(USER, storage.DEMOS_FOLDER)
+
+
+def test_two_tabs_on_one_run_the_later_save_is_refused_and_nothing_is_lost(tiny_run):
+    storage.save_run(tiny_run, USER, "shared")
+    path = storage.run_path(USER, "shared")
+    first, second = Run.load(path), Run.load(path)
+    first.step()
+    storage.save_run(first, USER, "shared")
+    with pytest.raises(checkpoint.RunChanged, match="another session saved this run"):
+        storage.save_run(second, USER, "shared")
+    assert storage.get_run(USER, "shared").iterations_done == 2
+    assert [r["evaluation"] for r in Run.load(path).records] == json.loads(json.dumps(
+        [r["evaluation"] for r in first.records]))
 
 
 def test_shipped_runs_copy_into_the_users_folder(tiny_run, tmp_path, monkeypatch):

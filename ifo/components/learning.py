@@ -32,11 +32,12 @@ def make_optimizer(module: torch.nn.Module, lr: float) -> torch.optim.Optimizer:
 def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimizer,
         inputs: Sequence[np.ndarray], targets: np.ndarray, epochs: int, batch_size: int,
         generator: torch.Generator, class_weights: np.ndarray | None = None,
-        grad_clip: float | None = None) -> FitResult:
+        clip_value: float | None = None) -> FitResult:
     """Train `forward(*inputs) -> logits` on integer `targets`; returns the last epoch's mean loss/accuracy.
 
     `targets` is one label per sample, or one row of labels per epoch (epochs x samples):
     labels drawn afresh for each pass, as exploration draws them from the IDM's softmax.
+    `clip_value` clips every gradient component to [-clip_value, clip_value] (CRIL, Sec 8.3).
     """
     module.train()
     xs = [as_tensor(x) for x in inputs]
@@ -59,8 +60,8 @@ def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimi
             loss = F.cross_entropy(logits, y[idx], weight=weight)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            if grad_clip is not None:
-                torch.nn.utils.clip_grad_norm_(module.parameters(), grad_clip)
+            if clip_value is not None:
+                torch.nn.utils.clip_grad_value_(module.parameters(), clip_value)
             optimizer.step()
             loss_sum += loss.item() * len(idx)
             correct += float((logits.argmax(-1) == y[idx]).sum())

@@ -59,8 +59,8 @@ def draw_per_action(t: Transitions, counts: np.ndarray, rng: np.random.Generator
 
 
 def build_training_set(mode: str, pre: Transitions, pos: Transitions, pos_success: np.ndarray,
-                       win_probability: float, n_actions: int,
-                       rng: np.random.Generator) -> tuple[Transitions, Mixture]:
+                       win_probability: float, n_actions: int, rng: np.random.Generator, *,
+                       pos_episodes=None, share_cap=None, previous=None) -> tuple[Transitions, Mixture]:
     if mode not in SAMPLING_MODES:
         raise ValueError(f"sampling must be one of {SAMPLING_MODES}, not {mode!r}")
     p = float(win_probability)

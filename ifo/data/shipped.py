@@ -6,11 +6,30 @@ images (or vector observations) are rendered when loaded, at the size a run asks
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-from ifo.data.demos import (DemoError, Demonstrations, ExpertTransitions, load_demonstrations,
+from ifo.data.demos import (MAX_DEMO_BYTES, DemoError, Demonstrations, ExpertTransitions, load_demonstrations,
                             shipped_actions_path, shipped_demos_path)
+from ifo.data.npz import NpzError, read_npz
 from ifo.envs import EnvSpec
+
+
+MAZE_KEYS = ("layouts", "episode_layout", "positions", "next_positions", "episode_starts", "rewards")
+
+
+def _read(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The shipped maze arrays, read with the same safe reader and limits as anyone's demonstrations."""
+    try:
+        data = read_npz(path, keys, max_array_bytes=MAX_DEMO_BYTES, max_total_bytes=MAX_DEMO_BYTES)
+    except NpzError as exc:
+        raise DemoError(str(exc)) from None
+    missing = [k for k in keys if k not in data]
+    if missing:
+        raise DemoError(f"{path}: missing key(s) {', '.join(map(repr, missing))}; remake it with "
+                        f"`python -m ifo experts demos`")
+    return data
 
 
 def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_size: int = 32,
@@ -32,15 +51,12 @@ def load_maze_demonstrations(spec: EnvSpec, obs_mode: str, image_size: int,
                              episodes: int | None = None) -> Demonstrations:
     from ifo.envs.maze import observation
 
-    with np.load(shipped_demos_path(spec), allow_pickle=False) as data:
-        layouts, episode_layout = data["layouts"], data["episode_layout"]
-        positions, next_positions = data["positions"], data["next_positions"]
-        starts, rewards = data["episode_starts"].astype(bool), data["rewards"]
+    data = _read(shipped_demos_path(spec), MAZE_KEYS)
+    layouts, episode_layout = data["layouts"], data["episode_layout"]
+    positions, next_positions = data["positions"], data["next_positions"]
+    starts, rewards = data["episode_starts"].astype(bool), data["rewards"]
     actions_file = shipped_actions_path(spec)
-    actions = None
-    if actions_file.exists():
-        with np.load(actions_file, allow_pickle=False) as data:
-            actions = data["actions"].astype(np.int64)
+    actions = _read(actions_file, ("actions",))["actions"].astype(np.int64) if actions_file.exists() else None
     episode = np.cumsum(starts) - 1
     if episodes is not None:  # drawing frames is the slow part: only the episodes a run uses
         keep = episode < episodes

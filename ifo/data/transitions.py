@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -54,25 +55,27 @@ class PreDemonstrations:
 
 
 def collect_random_transitions(pool: EnvPool, n_actions: int, size: int, per_action_cap: int,
-                               rng: np.random.Generator, seed_base: int, drop_unchanged: bool = False,
-                               episodes_per_batch: int = 32) -> Transitions:
+                               rng: np.random.Generator, seeds: Callable[[int, int], np.ndarray],
+                               drop_unchanged: bool = False, episodes_per_batch: int = 32) -> tuple[Transitions, int]:
     """Random-policy transitions, class-balanced at `per_action_cap` per action.
 
+    `seeds(batch, n)` gives the environment seeds of the batch-th group of n random episodes.
+    Returns the transitions and the number of environment steps taken to collect them.
     `drop_unchanged` removes moves that left the state as it was (the maze's moves into
     walls): they carry no information about which action was taken.
     """
     parts: list[Transitions] = []
     counts = np.zeros(n_actions, dtype=np.int64)
     target = min(size // n_actions, per_action_cap)
-    batch = 0
+    batch = steps = 0
 
     def act(obs):
         a = rng.integers(0, n_actions, size=len(obs))
         return a, a
 
     while counts.min() < target and batch < 200:
-        seeds = seed_base + batch * episodes_per_batch + np.arange(episodes_per_batch)
-        ro = run_episodes(pool, act, seeds)
+        ro = run_episodes(pool, act, seeds(batch, episodes_per_batch))
+        steps += len(ro.actions)
         part = Transitions(ro.states, ro.actions, ro.next_states)
         if drop_unchanged:
             part = part.subset(np.flatnonzero(part.moved()))
@@ -84,7 +87,7 @@ def collect_random_transitions(pool: EnvPool, n_actions: int, size: int, per_act
     for a in range(n_actions):
         idx = np.flatnonzero(everything.actions == a)
         keep.append(rng.permutation(idx)[:target])
-    return everything.subset(np.sort(np.concatenate(keep)))
+    return everything.subset(np.sort(np.concatenate(keep))), steps
 
 
 def stratified_split(t: Transitions, n_actions: int, val_share: float,

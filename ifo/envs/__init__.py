@@ -63,6 +63,8 @@ class EnvSpec:
     thesis_name: str = ""
     deterministic: bool = False  # same state and action always give the same next state
     feature_names: tuple[str, ...] = ()  # names of the state variables (vector states)
+    # two state variables to draw the policy over (Figs 8.2, 8.3): ((index, name, low, high), ...)
+    policy_map_axes: tuple = ()
 
     @property
     def n_actions(self) -> int:
@@ -96,7 +98,8 @@ _CONTROL = [
             thesis_name="Acrobot",
             feature_names=("cos θ1", "sin θ1", "cos θ2", "sin θ2", "θ1 velocity", "θ2 velocity")),
     EnvSpec("mountaincar", "MountainCar-v0", ("push left", "no push", "push right"), _reached_terminal,
-            thesis_name="MountainCar", feature_names=("position", "velocity")),
+            thesis_name="MountainCar", feature_names=("position", "velocity"),
+            policy_map_axes=((0, "position", -1.2, 0.6), (1, "velocity", -0.07, 0.07))),
     EnvSpec("lunarlander", "LunarLander-v3", ("noop", "fire left", "fire main", "fire right"), _lunar_goal,
             thesis_name="LunarLander",
             feature_names=("x", "y", "x velocity", "y velocity", "angle", "angular velocity", "left leg contact",

@@ -1,7 +1,9 @@
-"""Methods are the one BCO loop (`ifo.run.Run.step`) with components switched on.
+"""Methods are presets of a learner: which learner family, and which of its switches are on.
 
-Each method's file states its algorithm in the thesis's terms and the components it
-uses; adding a method means adding a file and a line to METHODS.
+The BCO family (BC, BCO, BCO(α), ABCO, IUPE) is one learner (ifo/learners/bco.py) with
+switches, because those methods really are ablations of one loop; each method's file states
+its algorithm in the thesis's terms and its preset. Adding a method means a file and a line
+in METHODS; adding a method family means a learner in ifo/learners/ as well.
 """
 from __future__ import annotations
 
@@ -13,18 +15,35 @@ class Method:
     name: str
     title: str
     summary: str
-    uses_idm: bool = True  # False only for BC, which learns from the expert's actions
-    iterative: bool = True  # False: one pass (BCO)
-    components: dict = field(default_factory=dict)  # defaults for RunConfig fields
+    learner: str  # the family: a key of ifo.learners.LEARNERS
+    preset: dict = field(default_factory=dict)  # values for the learner's configuration fields
+    sees_expert_actions: bool = False  # True only for the references that learn from them (BC, GAIL)
+    run_defaults: dict = field(default_factory=dict)  # RunConfig values this method prefers (e.g. iterations)
+
+    @property
+    def learner_class(self):
+        from ifo.learners import LEARNERS
+
+        return LEARNERS[self.learner]
+
+    def config(self, **values):
+        """This method's learner configuration with `values` set (the rest: its preset)."""
+        return self.learner_class.Config(**values)
+
+    @property
+    def fixed_iterations(self) -> int | None:
+        """1 for a single-pass method (BCO), None for iterative ones."""
+        return self.learner_class.Config(**self.preset).fixed_iterations()
 
 
 from ifo.methods.bc import BC  # noqa: E402
 from ifo.methods.bco import BCO, BCO_ALPHA  # noqa: E402
 from ifo.methods.abco import ABCO  # noqa: E402
 from ifo.methods.iupe import IUPE  # noqa: E402
+from ifo.methods.cril import CRIL  # noqa: E402
 
-METHODS: dict[str, Method] = {m.name: m for m in (BC, BCO, BCO_ALPHA, ABCO, IUPE)}
-PLANNED = ("cril", "sail", "gail", "gaifo", "ilpo")  # the thesis's other methods, not built yet
+METHODS: dict[str, Method] = {m.name: m for m in (BC, BCO, BCO_ALPHA, ABCO, IUPE, CRIL)}
+PLANNED = ("sail", "gail", "gaifo", "ilpo")  # the thesis's other methods, not built yet
 
 
 class UnknownMethod(ValueError):

@@ -13,5 +13,7 @@ from ifo.methods import Method
 ABCO = Method(
     name="abco", title="ABCO",
     summary="BCO(α) with self-attention and goal-aware sampling that mixes I_pre and successful runs.",
-    components={"sampling": "abco", "attention": "gated", "explore_labels": False, "explore_rollouts": False},
+    learner="bco",
+    preset={"labels": "idm", "single_pass": False, "sampling": "abco", "attention": "gated", "explore_labels": False,
+            "explore_rollouts": False},
 )

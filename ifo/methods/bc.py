@@ -5,6 +5,7 @@ from ifo.methods import Method
 BC = Method(
     name="bc", title="BC",
     summary="Supervised reference: the policy learns from the expert's true actions.",
-    uses_idm=False, iterative=True,
-    components={"sampling": "none", "attention": "none", "explore_labels": False, "explore_rollouts": False},
+    learner="bco", sees_expert_actions=True,
+    preset={"labels": "expert", "single_pass": False, "sampling": "none", "attention": "none",
+            "explore_labels": False, "explore_rollouts": False},
 )

@@ -14,12 +14,15 @@ from ifo.methods import Method
 BCO = Method(
     name="bco", title="BCO",
     summary="One pass: IDM on random transitions, label the expert, clone the labels.",
-    iterative=False,
-    components={"sampling": "none", "attention": "none", "explore_labels": False, "explore_rollouts": False},
+    learner="bco",
+    preset={"labels": "idm", "single_pass": True, "sampling": "none", "attention": "none", "explore_labels": False,
+            "explore_rollouts": False},
 )
 
 BCO_ALPHA = Method(
     name="bco-alpha", title="BCO(α)",
     summary="Iterative BCO: after each pass the IDM is retrained on the policy's own runs (I_s = I_pos).",
-    components={"sampling": "none", "attention": "none", "explore_labels": False, "explore_rollouts": False},
+    learner="bco",
+    preset={"labels": "idm", "single_pass": False, "sampling": "none", "attention": "none", "explore_labels": False,
+            "explore_rollouts": False},
 )

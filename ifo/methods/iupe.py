@@ -10,5 +10,7 @@ from ifo.methods import Method
 IUPE = Method(
     name="iupe", title="IUPE",
     summary="ABCO's loop with IUPE sampling and exploration: labels and actions sampled from the softmax.",
-    components={"sampling": "iupe", "attention": "gated", "explore_labels": True, "explore_rollouts": True},
+    learner="bco",
+    preset={"labels": "idm", "single_pass": False, "sampling": "iupe", "attention": "gated", "explore_labels": True,
+            "explore_rollouts": True},
 )

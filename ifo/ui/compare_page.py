@@ -9,13 +9,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ifo.config import RunConfig
+from ifo.config import RunConfig, configuration_label, switches
 from ifo.envs import get_env
 from ifo.methods import get_method
 from ifo.reproduce import NOT_IMPLEMENTED, TABLES, mean_sd, number
 from ifo.ui.settings import fast_overrides
 
-COMPONENTS = ("attention", "sampling", "explore_labels", "explore_rollouts")
 PRESET_TABLES = ("5.2", "6.2")
 
 
@@ -37,8 +36,7 @@ def _kind(config: RunConfig) -> tuple:
     """What makes two configurations the same experiment for the thesis tables."""
     cfg = config.resolved()
     method = get_method(cfg.method)
-    kind = "bc" if not method.uses_idm else ("bco" if not method.iterative else "loop")
-    return (kind, *(getattr(cfg, c) for c in COMPONENTS))
+    return (method.learner, method.sees_expert_actions, method.fixed_iterations, tuple(sorted(switches(cfg).items())))
 
 
 def thesis_numbers(config: RunConfig) -> tuple | None:
@@ -52,29 +50,12 @@ def thesis_numbers(config: RunConfig) -> tuple | None:
         for row in table.rows:
             if row.method in ("expert", "random") or row.method in NOT_IMPLEMENTED:
                 continue
-            if _kind(RunConfig(env=env, method=row.method, **row.overrides)) != kind:
+            if _kind(RunConfig.from_dict({"env": env, "method": row.method, **row.overrides})) != kind:
                 continue
             values = table.thesis.get(row.label, {}).get(env)
             if values is not None and any(v is not None for v in values):
                 return (values[0], values[1], f"Table {table_id}: {row.label}")
     return None
-
-
-def switches_label(config: RunConfig) -> str:
-    """A configuration's name: the method's, or the loop with its switches spelled out."""
-    cfg = config.resolved()
-    method = get_method(cfg.method)
-    if all(method.components.get(c) == getattr(cfg, c) for c in COMPONENTS):
-        return method.title
-    parts = []
-    if cfg.attention != "none":
-        parts.append(f"attention ({cfg.attention})")
-    if cfg.sampling != "none":
-        parts.append(f"sampling {cfg.sampling}")
-    if cfg.explore_labels or cfg.explore_rollouts:
-        parts.append("exploration" if cfg.explore_labels and cfg.explore_rollouts else
-                     ("exploring labels" if cfg.explore_labels else "exploring rollouts"))
-    return f"{method.title} + " + " + ".join(parts) if parts else f"{method.title} (no components)"
 
 
 def group_label(name: str, config: RunConfig) -> str:
@@ -90,23 +71,23 @@ def group_label(name: str, config: RunConfig) -> str:
 
 def plan(config: RunConfig, name: str | None = None, thesis: tuple | None = None) -> Planned:
     config = RunConfig.from_dict({**config.to_dict(), **fast_overrides()}).resolved()
-    name = name or switches_label(config)
+    name = name or configuration_label(config)
     if thesis is None and not config.demos:
         thesis = thesis_numbers(config)
     return Planned(group_label(name, config), config, thesis)
 
 
 def method_configs(env: str, methods: list[str], iterations: int | None = None) -> list[Planned]:
-    return [plan(RunConfig(env=env, method=m, iterations=iterations if get_method(m).iterative else None))
+    return [plan(RunConfig(env=env, method=m, iterations=iterations if get_method(m).fixed_iterations is None else None))
             for m in methods]
 
 
 def switch_config(env: str, attention: bool, sampling: str, exploration: bool,
                   iterations: int | None = None) -> Planned:
     """The one loop (BCO(α)) with the thesis's ablation switches set by hand."""
-    return plan(RunConfig(env=env, method="bco-alpha", iterations=iterations,
-                          attention="gated" if attention else "none", sampling=sampling,
-                          explore_labels=exploration, explore_rollouts=exploration))
+    return plan(RunConfig.from_dict(dict(env=env, method="bco-alpha", iterations=iterations,
+                                         attention="gated" if attention else "none", sampling=sampling,
+                                         explore_labels=exploration, explore_rollouts=exploration)))
 
 
 def preset_configs(table_id: str, env: str | None = None, iterations: int | None = None) -> list[Planned]:
@@ -119,8 +100,8 @@ def preset_configs(table_id: str, env: str | None = None, iterations: int | None
         # maze has AER 0.104 in Table 5.1 but -0.941 in Table 5.2)
         own = table.thesis.get(row.label, {}).get(env)
         thesis = (*own, f"Table {table_id}: {row.label}") if own else None
-        out.append(plan(RunConfig(env=env, method=row.method, iterations=iterations, **row.overrides), row.label,
-                        thesis))
+        out.append(plan(RunConfig.from_dict({"env": env, "method": row.method, "iterations": iterations,
+                                             **row.overrides}), row.label, thesis))
     return out
 
 

@@ -26,8 +26,7 @@ BOXES = {
     "evaluate": (13.1, 1.2, "evaluation"),
 }
 W, H = 2.2, 1.1  # box size
-PHASE_BOX = {"idm": "idm", "label": "label", "policy": "policy", "attention": "policy", "rollout": "rollout",
-             "sampling": "sampling", "evaluate": "evaluate"}
+PHASE_BOX = {"evaluate": "evaluate"}  # the learner's phases say which box they light up
 
 
 def _n(v) -> str:
@@ -100,11 +99,13 @@ def _edge(fig: go.Figure, a: str, b: str, label: str = "", off: bool = False, si
 
 
 def loop_diagram(record: dict | None, active_phase: str | None = None, pre_size: int | None = None,
-                 expert_size: int | None = None, theme: str = "screen") -> go.Figure:
+                 expert_size: int | None = None, theme: str = "screen", phase_boxes: dict | None = None,
+                 doing: str | None = None) -> go.Figure:
     """The loop at one iteration (`record`, None before the first), with `active_phase`'s box
-    highlighted. `pre_size` (|I_pre|) and `expert_size` (|T_e|) come from the run when known."""
+    highlighted (`phase_boxes`: the learner's phase -> box; `doing`: what that phase does, in words).
+    `pre_size` (|I_pre|) and `expert_size` (|T_e|) come from the run when known."""
     lines, arrows, off = _texts(record, pre_size, expert_size)
-    active = PHASE_BOX.get(active_phase) if active_phase else None
+    active = {**PHASE_BOX, **(phase_boxes or {})}.get(active_phase) if active_phase else None
     big = theme == "slide"
     fig = go.Figure()
     for name, (x, y, title) in BOXES.items():
@@ -129,7 +130,7 @@ def loop_diagram(record: dict | None, active_phase: str | None = None, pre_size:
     _edge(fig, "pre", "sampling", "", off="sampling" in off, size=size)
     _edge(fig, "sampling", "is", arrows[("sampling", "is")], off="sampling" in off, size=size)
     if active_phase:
-        note = {"attention": "drawing where the policy looks (Grad-CAM)"}.get(active_phase, f"now: {active_phase}")
+        note = doing or f"now: {active_phase}"
         note = f"iteration {(record or {}).get('iteration', 0) + 1}, {note}"
     else:
         note = f"iteration {record['iteration']}" if record else "before the first iteration"

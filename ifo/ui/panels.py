@@ -9,6 +9,7 @@ import plotly.graph_objects as go
 import streamlit as st
 
 from ifo.ui.export import chart_downloads, export_note, slide_pack_download
+from ifo.ui.registry import env_view
 
 # The chart's camera button downloads an SVG drawn by the browser: slides, no server work.
 CHART_CONFIG = {"toImageButtonOptions": {"format": "svg"}, "displaylogo": False}
@@ -111,7 +112,7 @@ def _one(panel, ctx: PanelContext) -> None:
         panel.render(ctx)
         panel_caption(panel)
         return
-    fig = panel.draw(ctx.records, ctx.run, ctx.iteration)
+    fig = panel.draw(ctx.records, env_view(ctx.run), ctx.iteration)
     if fig is None:
         return
     st.plotly_chart(fig, key=f"panel.{panel.key}", config=CHART_CONFIG)

@@ -35,27 +35,16 @@ from dataclasses import dataclass, field, replace
 import streamlit as st
 from streamlit.runtime.scriptrunner_utils.exceptions import ScriptControlException
 
-from ifo.config import RunConfig
+from ifo.config import RunConfig, configuration_label
 from ifo.envs import get_env
-from ifo.run import PHASES, Run, RunFinished
+from ifo.run import Run, RunFinished
 from ifo.ui import storage
-from ifo.ui.settings import Choice, method_label, set_widgets
+from ifo.ui.settings import Choice, set_widgets
 
 log = logging.getLogger(__name__)
 
 TICK_SECONDS = 0.3  # fragment rerun interval while playing
 _TRAININGS = threading.BoundedSemaphore(max(1, int(os.environ.get("IFO_LAB_MAX_TRAININGS", "2"))))
-
-PHASE_TEXT = {
-    "idm": "training the inverse dynamics model (IDM) on I_s",
-    "label": "labelling the expert's state pairs with the IDM",
-    "policy": "training the policy on those labels",
-    "attention": "computing attention maps on probe images",
-    "rollout": "running the policy to collect its own experience (I_pos)",
-    "sampling": "choosing what the IDM learns from next (I_s)",
-    "evaluate": "measuring the policy: AER and Performance",
-}
-
 
 def _identity(config: RunConfig) -> dict:
     """What makes a run a different run: everything but the number of iterations."""
@@ -63,8 +52,9 @@ def _identity(config: RunConfig) -> dict:
 
 
 def describe(config: RunConfig) -> str:
+    """"IUPE on CartPole, seed 0"; a configuration that is no method's preset names its switches."""
     spec = get_env(config.env)
-    return f"{method_label(config.method)} on {spec.thesis_name or spec.name}, seed {config.seed}"
+    return f"{configuration_label(config)} on {spec.thesis_name or spec.name}, seed {config.seed}"
 
 
 @dataclass
@@ -92,6 +82,7 @@ class _ProgressBar:
 
     def __init__(self, area, run: Run, on_phase=None):
         self.area, self.total = area, run.config.iterations
+        self.run = run
         self.phases = run.phases()
         self.on_phase = on_phase
         self.done = 0.0
@@ -106,13 +97,11 @@ class _ProgressBar:
             self.deferred = e
 
     def __call__(self, phase: str, iteration: int) -> None:
-        # the run's own phases: a method that skips some does not jump; a phase that comes
-        # twice (the maze's attention probes) never moves the bar back
-        names = self.phases if phase in self.phases else list(PHASES)
+        # the run's own phases (a method that skips some does not jump); never moves the bar back
+        names = self.phases
         self.done = max(self.done, names.index(phase) / len(names) if phase in names else 0.0)
         step = names.index(phase) + 1 if phase in names else 0
-        text = (f"Iteration {iteration} of {self.total}, step {step} of {len(names)}: "
-                f"{PHASE_TEXT.get(phase, phase)}")
+        text = f"Iteration {iteration} of {self.total}, step {step} of {len(names)}: {self.run.phase_text(phase)}"
         self.show(self.area.progress, self.done, text=text)
         if self.on_phase is not None:
             self.show(self.on_phase, phase, iteration)
@@ -152,6 +141,9 @@ class RunSlot:
         """The run for these settings: the current one, or a new one if env/method/seed changed
         or Reset was pressed. None (with `error` set) when the settings cannot make a run."""
         s = self.state
+        if s.run is not None and s.run.config.demos and "demos" not in choice.values:
+            # a run on the user's own demonstrations: no widget holds the file, the run does
+            choice = Choice({**choice.values, "demos": s.run.config.demos})
         try:
             config = choice.config()
         except ValueError as e:
@@ -165,7 +157,7 @@ class RunSlot:
                 s.run.config = replace(s.run.config, iterations=config.iterations)  # keep the records
                 s.target = min(s.target, config.iterations)
             return s.run
-        previous = s.run
+        previous, previous_saved = s.run, s.user is not None and s.save_error is None
         s.reset_requested = s.playing = False
         s.run, s.identity, s.error, s.step_error, s.target = None, identity, None, None, 0
         s.run_id, s.save_error, s.videos = storage.new_run_id(config), None, {}
@@ -181,8 +173,9 @@ class RunSlot:
                 s.error = f"Could not start a run of {describe(config)}: {e}"
                 return None
         if previous is not None and previous.records:
+            where = "is kept in Your runs" if previous_saved else "was not saved"
             s.notices.append(f"New run: {describe(config)}. The previous run "
-                             f"({describe(previous.config)}, {previous.iteration} iterations) was discarded.")
+                             f"({describe(previous.config)}, {previous.iteration} iterations) {where}.")
         return s.run
 
     def adopt(self, run: Run, run_id: str, key: str) -> None:

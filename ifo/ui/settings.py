@@ -1,14 +1,17 @@
-"""Widgets -> RunConfig: the environment, method, seed, iterations and ablation switches.
+"""Widgets -> RunConfig, generated from the configuration classes (ifo.options): one widget per
+field, labelled, bounded and explained by the field's own declaration, so the app, the
+command line and the checks never drift apart.
 
-The switches (attention, sampling mode, exploration of labels and of rollouts, AER with
-sampled or MAP actions) are plain RunConfig fields. Choosing a method sets them to the
-method's components; a *preset* sets a method and its switches at once: the thesis's
-methods (BCO, BCO(α), ABCO, IUPE) and the ablation rows of Tables 5.2 and 6.2, taken
-from `ifo.reproduce.TABLES` (one source of truth).
-
-With `bind=True` every widget keeps its value in the page's URL (`bind="query-params"`,
-the key is the parameter's name), so a teacher can share a link that opens the same
-configuration. A switch appears in the URL only when it differs from the method's choice.
+- The run's main fields (environment, method, seed, iterations, and the maze's options) come
+  first; then the learner's switches (for the BCO family: attention, sampling, exploration),
+  then "More settings" (sizes, learning rate, ...), where an empty box means "the method's or
+  the environment's default".
+- Choosing a method sets its switches to the method's preset; a *preset* sets a method and
+  its switches at once: the thesis's methods and the ablation rows of Tables 5.2 and 6.2
+  (taken from `ifo.reproduce.TABLES`, one source of truth).
+- With `bind=True` every widget keeps its value in the page's URL (`bind="query-params"`, the
+  key is the parameter's name), so a teacher can share a link that opens the same
+  configuration; a value appears in the URL only when it differs from the default.
 
 Set IFO_LAB_FAST=1 to shrink every run built through `fast_overrides()` (10 evaluation
 episodes, 10 policy runs per iteration, 2,000 random transitions, 2 policy epochs), so a
@@ -17,22 +20,22 @@ Step takes a fraction of a second. The app's tests set it; a teacher never needs
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
 
 import streamlit as st
 
-from ifo.config import RunConfig
+from ifo.config import RunConfig, switches
 from ifo.envs import ENVS, get_env
 from ifo.methods import METHODS, get_method
+from ifo.options import Spec, check_field, specs
 from ifo.reproduce import TABLES
 
 FAST_OVERRIDES = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2)
-SWITCHES = ("attention", "sampling", "explore_labels", "explore_rollouts")
-ATTENTION_LABELS = {"none": "off", "gated": "on (gated, as in the thesis)", "features": "over state variables"}
-SAMPLING_LABELS = {"none": "none: I_s = I_pos (BCO(α))", "abco": "ABCO, partial (Eqs 5.3–5.5)",
-                   "abco-whole": "ABCO, whole (Table 5.2)", "iupe": "IUPE (Sec 6.1)"}
-EVAL_LABELS = {False: "MAP actions (the most likely)", True: "actions sampled from π"}
-MAZE_EVAL_LABELS = {"held-out": "100 layouts it never saw", "demonstration": "the demonstrations' layouts (thesis)"}
+MAIN_FIELDS = ("env", "method", "seed", "iterations")
+MAZE_FIELDS = ("maze_eval_layouts", "deadlock_guard")  # shown for mazes only (obs_mode etc. are advanced)
+MAZE_ONLY = MAZE_FIELDS + ("obs_mode", "image_size", "rollout_max_steps", "attention_probes")
+NOT_WIDGETS = ("demos",)  # chosen on the runs page (uploads), not typed in
+METHOD_FIELDS = ("labels", "single_pass")  # what makes BC or BCO: the method chooses them
 
 
 def fast_overrides() -> dict:
@@ -55,75 +58,70 @@ def default_iterations(env: str, method: str) -> int:
     return RunConfig(env=env, method=method).resolved().iterations
 
 
+def resolved_defaults(env: str, method: str) -> dict:
+    """Every setting's value for a plain run of `method` on `env` (flat names)."""
+    return RunConfig(env=env, method=method).resolved().flat()
+
+
 # --------------------------------------------------------------------------- presets
 @dataclass(frozen=True)
 class Preset:
     label: str
     method: str
-    switches: dict  # the four SWITCHES
+    switches: dict  # the learner's switches
     source: str = ""  # "Table 6.2" for an ablation row
-    thesis: str = ""  # the thesis's numbers for that row, in words
-
-
-def _components(method: str, overrides: dict | None = None) -> dict:
-    comp = get_method(method).components
-    return {k: (overrides or {}).get(k, comp.get(k)) for k in SWITCHES}
+    thesis: dict = field(default_factory=dict)  # env -> the thesis's numbers for that row, in words
 
 
 def _presets() -> dict[str, Preset]:
-    out = {m: Preset(get_method(m).title, m, _components(m)) for m in ("bco", "bco-alpha", "abco", "iupe")}
+    out = {m: Preset(get_method(m).title, m, switches(RunConfig(method=m).resolved()))
+           for m, method in METHODS.items() if not method.sees_expert_actions}
     for table_id in ("5.2", "6.2"):
         table = TABLES[table_id]
         for row in table.rows:
-            numbers = []
-            for env, (p, aer) in table.thesis.get(row.label, {}).items():
-                numbers.append(f"{env_label(env)}: P = {p:.3f}, AER = {aer:.3f}")
-            out[f"t{table_id}:{row.label}"] = Preset(f"Table {table_id}: {row.label}", row.method,
-                                                     _components(row.method, row.overrides), f"Table {table_id}",
-                                                     "; ".join(numbers))
+            numbers = {env: f"P = {p:.3f}, AER = {aer:.3f}" for env, (p, aer) in table.thesis.get(row.label, {}).items()}
+            cfg = RunConfig.from_dict({"method": row.method, **row.overrides}).resolved()
+            out[f"t{table_id}:{row.label}"] = Preset(f"Table {table_id}: {row.label}", row.method, switches(cfg),
+                                                     f"Table {table_id}", numbers)
     return out
 
 
 PRESETS: dict[str, Preset] = _presets()
 
 
-def matching_presets(method: str, switches: dict) -> list[Preset]:
-    """The presets these settings are (same iterative-ness, same switches)."""
-    iterative = get_method(method).iterative
+def matching_presets(method: str, values: dict) -> list[Preset]:
+    """The presets these settings are (the same learner family and single-pass-ness, the same switches)."""
+    m = get_method(method)
     return [p for p in PRESETS.values()
-            if p.switches == {k: switches.get(k) for k in SWITCHES} and get_method(p.method).iterative == iterative
-            and get_method(p.method).uses_idm == get_method(method).uses_idm]
+            if p.switches == {k: values.get(k) for k in p.switches}
+            and get_method(p.method).learner == m.learner and get_method(p.method).fixed_iterations == m.fixed_iterations]
 
 
 # --------------------------------------------------------------------------- the choice
 @dataclass(frozen=True)
 class Choice:
-    """What the settings widgets say, before it becomes a RunConfig. Switches left None take
-    the method's components."""
+    """What the settings widgets say, before it becomes a RunConfig: flat settings by name (a
+    learner setting left None takes the method's preset or the environment's default)."""
 
-    env: str
-    method: str
-    seed: int
-    iterations: int
-    attention: str | None = None
-    sampling: str | None = None
-    explore_labels: bool | None = None
-    explore_rollouts: bool | None = None
-    eval_explore: bool = False
-    maze_eval_layouts: str = "held-out"  # maze only
-    deadlock_guard: bool = False  # maze only
+    values: dict
+
+    @property
+    def env(self) -> str:
+        return self.values["env"]
+
+    @property
+    def method(self) -> str:
+        return self.values["method"]
 
     def config(self) -> RunConfig:
         """The resolved configuration; raises ValueError with a plain message if a value is impossible."""
-        return RunConfig(**asdict(self), **fast_overrides()).resolved()
+        return RunConfig.from_dict({**self.values, **fast_overrides()}).resolved()
 
     @classmethod
     def from_config(cls, config: RunConfig) -> "Choice":
-        return cls(config.env, config.method, config.seed, config.iterations,
-                   **{k: getattr(config, k) for k in (*SWITCHES, "eval_explore", *MAZE_FIELDS)})
-
-
-MAZE_FIELDS = ("maze_eval_layouts", "deadlock_guard")
+        values = config.flat()
+        values.pop("learner", None)
+        return cls(values)
 
 
 def _k(key: str, name: str) -> str:
@@ -134,22 +132,39 @@ def iterations_key(key: str, env: str, method: str) -> str:
     return f"{key}.iterations.{env}.{method}"
 
 
+def _widget_key(key: str, name: str, env: str, method: str) -> str:
+    return iterations_key(key, env, method) if name == "iterations" else _k(key, name)
+
+
 def set_widgets(key: str, choice: Choice) -> None:
     """Put a choice into the widgets' session state (before they are drawn: a loaded run)."""
-    ss = st.session_state
-    ss[_k(key, "env")], ss[_k(key, "method")], ss[_k(key, "seed")] = choice.env, choice.method, int(choice.seed)
-    for name in SWITCHES:
-        ss[_k(key, name)] = getattr(choice, name)
-    ss[_k(key, "eval_explore")] = bool(choice.eval_explore)
-    ss[_k(key, "maze_eval_layouts")], ss[_k(key, "deadlock_guard")] = choice.maze_eval_layouts, choice.deadlock_guard
-    if get_method(choice.method).iterative:
-        ss[iterations_key(key, choice.env, choice.method)] = int(choice.iterations)
+    ss, env, method = st.session_state, choice.env, choice.method
+    defaults = resolved_defaults(env, method)
+    advanced = {s.name for s in _all_specs(method) if s.advanced}
+    for name, value in choice.values.items():
+        if name in NOT_WIDGETS + METHOD_FIELDS or name == "learner":
+            continue
+        if name == "iterations" and get_method(method).fixed_iterations is not None:
+            continue
+        if name in advanced:  # empty box = the default; only differences are written
+            value = None if value == defaults.get(name) else value
+        ss[_widget_key(key, name, env, method)] = _widget_value(name, value)
+
+
+def _widget_value(name: str, value):
+    if name == "hidden":  # the one text box: empty is its default
+        return ",".join(map(str, value)) if value else ""
+    return ",".join(map(str, value)) if isinstance(value, tuple) else value
+
+
+def _all_specs(method: str) -> list[Spec]:
+    return specs(RunConfig) + specs(get_method(method).learner_class.Config)
 
 
 def _apply_method(key: str) -> None:
-    """The method selectbox changed: its switches follow its components."""
+    """The method selectbox changed: its switches follow its preset."""
     method = st.session_state[_k(key, "method")]
-    for name, value in _components(method).items():
+    for name, value in switches(RunConfig(method=method).resolved()).items():
         st.session_state[_k(key, name)] = value
 
 
@@ -163,11 +178,54 @@ def _apply_preset(key: str) -> None:
     st.session_state[_k(key, "preset")] = None  # the selectbox only applies; the caption says what matches
 
 
-def run_settings(key: str = "run", where=None, bind: bool = False, switches: bool = True) -> Choice:
-    """Draw the environment / method / seed / iterations pickers (in the sidebar by default),
-    then (with `switches`) the presets and ablation switches. `bind` keeps them in the URL."""
+def _widget(s: Spec, key: str, default, bind: dict, disabled: bool = False, optional: bool = False):
+    """One widget for one field, as its declaration says (labels, bounds, help)."""
+    help_text = s.help[0].upper() + s.help[1:] + "." if s.help else None
+    if optional and (s.choices is not None or s.kind is bool):  # None: the default, shown as such
+        choices = [None] + (list(s.choices) if s.choices is not None else [False, True])
+        name = lambda v: str(s.labels.get(v, v))  # noqa: E731
+        return st.selectbox(s.label, choices, key=key, help=help_text, disabled=disabled, **bind,
+                            format_func=lambda v: f"default ({name(default)})" if v is None else name(v))
+    if s.choices is not None or (s.kind is bool and s.labels):
+        choices = list(s.choices) if s.choices is not None else [False, True]
+        fmt = (lambda v: str(s.labels.get(v, v))) if s.labels else str
+        index = choices.index(default) if default in choices else 0
+        if s.widget == "radio":
+            return st.radio(s.label, choices, index=index, format_func=fmt, key=key, help=help_text,
+                            disabled=disabled, **bind)
+        return st.selectbox(s.label, choices, index=index, format_func=fmt, key=key, help=help_text,
+                            disabled=disabled, **bind)
+    if s.kind is bool:
+        return st.toggle(s.label, value=bool(default), key=key, help=help_text, disabled=disabled, **bind)
+    if s.kind in (int, float):
+        step = 1 if s.kind is int else None
+        low = s.low if s.low is None or s.kind is float else int(s.low)
+        high = s.high if s.high is None or s.kind is float else int(s.high)
+        if optional:  # empty: the default (shown as the placeholder)
+            value = st.number_input(s.label, min_value=low, max_value=high, value=None, step=step, key=key,
+                                    help=help_text, disabled=disabled, placeholder=f"default: {default:g}"
+                                    if default is not None else "default", format="%g" if s.kind is float else None,
+                                    **bind)
+            return value
+        return st.number_input(s.label, min_value=low, max_value=high, value=default, step=step, key=key,
+                               help=help_text, disabled=disabled, **bind)
+    if s.kind is tuple:
+        text = st.text_input(s.label, value="", key=key, help=help_text, disabled=disabled,
+                             placeholder=f"default: {','.join(map(str, default or ()))}", **bind) or ""
+        try:
+            return tuple(int(v) for v in text.split(",") if v.strip()) or None
+        except ValueError:
+            raise ValueError(f"{s.name} must be whole numbers separated by commas, got {text!r}") from None
+    return st.text_input(s.label, value=default or "", key=key, help=help_text, disabled=disabled, **bind) or None
+
+
+def run_settings(key: str = "run", where=None, bind: bool = False, switches_shown: bool = True) -> Choice:
+    """Draw the run's settings (in the sidebar by default): environment, method, seed, iterations, the
+    maze's options, then (with `switches_shown`) presets, the learner's switches and "More settings".
+    `bind` keeps them in the URL. A value a widget cannot hold raises ValueError (shown by the page)."""
     where = st.sidebar if where is None else where
     b = {"bind": "query-params"} if bind else {}
+    run_specs = {s.name: s for s in specs(RunConfig)}
     with where:
         st.subheader("Run settings")
         env = st.selectbox("Environment", list(ENVS), format_func=env_label, key=_k(key, "env"), **b,
@@ -175,122 +233,121 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches: boo
         method = st.selectbox("Method", list(METHODS), format_func=method_label, key=_k(key, "method"),
                               index=list(METHODS).index("bco-alpha"), on_change=_apply_method, args=(key,), **b)
         st.caption(METHODS[method].summary)
-        seed = int(st.number_input("Seed", min_value=0, max_value=1_000_000, value=0, step=1, key=_k(key, "seed"),
-                                   help="Same seed, same numbers.", **b))
-        default = default_iterations(env, method)
-        if METHODS[method].iterative:
+        defaults = resolved_defaults(env, method)
+        values = {"env": env, "method": method}
+        values["seed"] = int(_widget(run_specs["seed"], _k(key, "seed"), 0, b))
+        fixed = get_method(method).fixed_iterations
+        if fixed is None:
             # the key holds env and method, so each pair starts from its own default
-            iterations = int(st.number_input("Iterations in the run", min_value=1, max_value=1000, value=default,
-                                             step=1, key=iterations_key(key, env, method), **b,
-                                             help="How many presses of Step make a full run (the thesis's α)."))
+            values["iterations"] = int(_widget(run_specs["iterations"], iterations_key(key, env, method),
+                                               defaults["iterations"], b))
         else:
-            st.number_input("Iterations in the run", value=1, disabled=True, key=iterations_key(key, env, method),
+            st.number_input("Iterations in the run", value=fixed, disabled=True, key=iterations_key(key, env, method),
                             help=f"{METHODS[method].title} is a single pass.")
-            iterations = 1
-        maze = _maze_widgets(key, b) if get_env(env).is_maze else {}
-        if not switches:
+            values["iterations"] = fixed
+        if get_env(env).is_maze:
+            values.update(_maze_widgets(key, run_specs, b))
+        if not switches_shown:
             st.caption("Changing the environment, method or seed starts a new run.")
-            return Choice(env, method, seed, iterations, **maze)
-        values = _switch_widgets(key, method, b)
+            return Choice(values)
+        values.update(_switch_widgets(key, method, defaults, run_specs, b))
+        values.update(_more_settings(key, env, method, defaults, b))
         st.caption("Changing the environment, method, seed or a switch starts a new run.")
-    return Choice(env, method, seed, iterations, **values, **maze)
+    return Choice(values)
 
 
-def _maze_widgets(key: str, b: dict) -> dict:
+def _maze_widgets(key: str, run_specs: dict, b: dict) -> dict:
     """Where a maze policy is judged: a generalisation test, or the thesis authors' protocol."""
-    layouts = st.radio("Evaluate on", list(MAZE_EVAL_LABELS), format_func=MAZE_EVAL_LABELS.get,
-                       key=_k(key, "maze_eval_layouts"), **b,
-                       help="Held-out layouts test whether the policy learned to navigate. The thesis "
-                            "evaluated on the layouts its 100 demonstrations came from, and its agent "
-                            "lived in those layouts only: that choice reproduces it.")
+    layouts = _widget(run_specs["maze_eval_layouts"], _k(key, "maze_eval_layouts"), "held-out", b)
     if layouts == "held-out":
         st.caption("A test of generalisation: from 100 demonstrations a policy mostly learns its mazes, so "
                    "even BC (which sees the true actions) scores low here (5×5: P ≈ 0.26). The thesis's "
                    "numbers come from the demonstrations' layouts.")
-    guard = st.toggle("Deadlock guard", key=_k(key, "deadlock_guard"), **b,
-                      help="End an evaluation episode on the 4th visit to a cell, with return −1 (the thesis's "
-                           "evaluation). Without it a policy that loops wanders until the 1,000-step limit.")
+    guard = _widget(run_specs["deadlock_guard"], _k(key, "deadlock_guard"), False, b)
     return {"maze_eval_layouts": layouts, "deadlock_guard": bool(guard)}
 
 
-def _switch_widgets(key: str, method: str, b: dict) -> dict:
-    m = get_method(method)
-    comp = _components(method)
+def _switch_widgets(key: str, method: str, defaults: dict, run_specs: dict, b: dict) -> dict:
+    cls = get_method(method).learner_class.Config
+    switch_specs = [s for s in specs(cls) if not s.advanced]
     st.subheader("Components")
     st.selectbox("Preset", list(PRESETS), index=None, key=_k(key, "preset"), format_func=lambda p: PRESETS[p].label,
                  placeholder="Apply a thesis configuration...", on_change=_apply_preset, args=(key,),
                  help="Sets the method and its switches to a configuration of the thesis: its methods, "
                       "and the ablation rows of Tables 5.2 (ABCO) and 6.2 (IUPE).")
-    no_idm, no_rollouts = not m.uses_idm, not (m.uses_idm and m.iterative)
-    attention = st.selectbox("Attention", list(ATTENTION_LABELS), format_func=ATTENTION_LABELS.get,
-                             index=list(ATTENTION_LABELS).index(comp["attention"]), key=_k(key, "attention"), **b,
-                             help="An attention module in the IDM and the policy (ABCO, IUPE). 'Over state "
-                                  "variables' learns which variables matter and can be drawn as a chart.")
-    sampling = st.selectbox("Sampling of I_s", list(SAMPLING_LABELS), format_func=SAMPLING_LABELS.get,
-                            index=list(SAMPLING_LABELS).index(comp["sampling"]), key=_k(key, "sampling"), **b,
-                            disabled=no_rollouts,
-                            help="What the IDM trains on next: the policy's own runs (I_pos), mixed with the "
-                                 "random transitions (I_pre) by how often the runs reached the goal.")
-    explore_labels = st.toggle("Explore: sample the labels", value=bool(comp["explore_labels"]),
-                               key=_k(key, "explore_labels"), disabled=no_idm, **b,
-                               help="Label the expert's pairs with actions sampled from the IDM's softmax "
-                                    "instead of the most likely one (IUPE, Sec 6.2).")
-    explore_rollouts = st.toggle("Explore: sample the policy's actions", value=bool(comp["explore_rollouts"]),
-                                 key=_k(key, "explore_rollouts"), disabled=no_rollouts, **b,
-                                 help="Run the policy with actions sampled from its softmax while it collects "
-                                      "its own experience (IUPE).")
-    eval_explore = st.radio("Measure AER with", list(EVAL_LABELS), format_func=EVAL_LABELS.get,
-                            key=_k(key, "eval_explore"), horizontal=False, **b,
-                            help="The thesis measured IUPE with sampled actions; MAP actions are deterministic.")
-    values = dict(attention=attention, sampling=sampling, explore_labels=bool(explore_labels),
-                  explore_rollouts=bool(explore_rollouts))
+    unused = cls(**{s.name: defaults.get(s.name) for s in specs(cls)}).unused()
+    values = {s.name: _widget(s, _k(key, s.name), defaults[s.name], b, disabled=s.name in unused)
+              for s in switch_specs}
+    values["eval_explore"] = bool(_widget(run_specs["eval_explore"], _k(key, "eval_explore"), False, b))
     matches = matching_presets(method, values)
+    env = st.session_state.get(_k(key, "env"))
     if matches:
         st.caption("These are the thesis's " + " = ".join(f"**{p.label}**" for p in matches) + ".")
         for p in matches:
-            if p.thesis:
-                st.caption(f"{p.source} reports for this row — {p.thesis}.")
+            if env in p.thesis:  # only numbers for this environment
+                st.caption(f"{p.source} reports for this row on {env_label(env)}: {p.thesis[env]}.")
     else:
         st.caption("A custom combination of components.")
-    return {**values, "eval_explore": bool(eval_explore)}
+    return values
+
+
+def _more_settings(key: str, env: str, method: str, defaults: dict, b: dict) -> dict:
+    """Sizes and rates, in an expander: an empty box keeps the method's or the environment's default."""
+    maze = get_env(env).is_maze
+    chosen = [s for s in _all_specs(method) if s.advanced and s.name not in NOT_WIDGETS + METHOD_FIELDS
+              and (maze or s.name not in MAZE_ONLY)]
+    values = {}
+    with st.expander("More settings"):
+        st.caption("Empty boxes keep the default shown in grey.")
+        for s in chosen:
+            value = _widget(s, _k(key, s.name), defaults.get(s.name), b, optional=True)
+            if value is not None:
+                values[s.name] = int(value) if s.kind is int else value
+    return values
 
 
 def choice_without_widgets(key: str) -> Choice:
-    """The settings when the lesson hides their widgets (`?hide=settings`): from the session's
-    widget state, else from the URL (the same parameters the bound widgets write), else defaults."""
+    """The settings when the lesson hides their widgets (`?hide=settings`): from the session's widget
+    state, else from the URL (the same parameters the bound widgets write), else defaults."""
     ss, qp = st.session_state, st.query_params
 
-    def raw(name):
-        k = _k(key, name)
+    def raw(name: str, widget_key: str | None = None):
+        k = widget_key or _k(key, name)
         return ("state", ss[k]) if k in ss else ("url", qp.get(k)) if qp.get(k) is not None else (None, None)
 
-    def pick(name, labels: dict, default):
-        where, v = raw(name)
+    def pick(s: Spec, default, widget_key: str | None = None):
+        where, v = raw(s.name, widget_key)
         if where == "state":
             return v
-        by_label = {str(label): value for value, label in labels.items()}
-        return by_label.get(v, default) if where == "url" else default
+        if where != "url":
+            return default
+        by_label = {str(label): value for value, label in s.labels.items()}
+        if v in by_label:
+            return by_label[v]
+        try:
+            value = {bool: lambda t: str(t).lower() in ("true", "1"), int: int, float: float}.get(s.kind, str)(v)
+            check_field(s, value)
+            return value
+        except (ValueError, TypeError):
+            return default
 
-    env = pick("env", {e: env_label(e) for e in ENVS}, next(iter(ENVS)))
-    method = pick("method", {m: method_label(m) for m in METHODS}, "bco-alpha")
-    where, seed = raw("seed")
-    try:
-        seed = int(seed) if where else 0
-    except ValueError:
-        seed = 0
-    comp = _components(method)
-    it_key = iterations_key(key, env, method)
-    iterations = ss.get(it_key, qp.get(it_key)) if get_method(method).iterative else 1
-    try:
-        iterations = int(iterations) if iterations is not None else default_iterations(env, method)
-    except ValueError:
-        iterations = default_iterations(env, method)
-    bools = {True: "true", False: "false"}
-    return Choice(env, method, seed, iterations,
-                  attention=pick("attention", ATTENTION_LABELS, comp["attention"]),
-                  sampling=pick("sampling", SAMPLING_LABELS, comp["sampling"]),
-                  explore_labels=bool(pick("explore_labels", bools, comp["explore_labels"])),
-                  explore_rollouts=bool(pick("explore_rollouts", bools, comp["explore_rollouts"])),
-                  eval_explore=bool(pick("eval_explore", EVAL_LABELS, False)),
-                  **({"maze_eval_layouts": pick("maze_eval_layouts", MAZE_EVAL_LABELS, "held-out"),
-                      "deadlock_guard": bool(pick("deadlock_guard", bools, False))} if get_env(env).is_maze else {}))
+    run_specs = {s.name: s for s in specs(RunConfig)}
+    env_spec = Spec("env", str, False, "cartpole", "", tuple(ENVS), None, None,
+                    {e: env_label(e) for e in ENVS}, False, "", "")
+    method_spec = Spec("method", str, False, "bco-alpha", "", tuple(METHODS), None, None,
+                       {m: method_label(m) for m in METHODS}, False, "", "")
+    env, method = pick(env_spec, "cartpole"), pick(method_spec, "bco-alpha")
+    defaults = resolved_defaults(env, method)
+    values = {"env": env, "method": method, "seed": pick(run_specs["seed"], 0)}
+    if get_method(method).fixed_iterations is None:
+        values["iterations"] = pick(run_specs["iterations"], defaults["iterations"], iterations_key(key, env, method))
+    for s in _all_specs(method):
+        if s.name in values or s.name in NOT_WIDGETS + METHOD_FIELDS or (s.name in MAZE_ONLY
+                                                                         and not get_env(env).is_maze):
+            continue
+        value = pick(s, None if s.advanced else defaults.get(s.name))
+        if isinstance(value, str) and s.kind is tuple:
+            value = tuple(int(v) for v in value.split(",") if v.strip()) or None
+        if value is not None:
+            values[s.name] = value
+    return Choice(values)

@@ -2,10 +2,12 @@
 
 A user is an id kept in the page's URL (`?user=...`), so reloading the page or opening
 the same link again finds the same runs, while other people's sessions have their own.
-Runs are saved with `Run.save` (atomic); a run's display name lives in `label.json`,
-so renaming never moves the folder that holds the weights.
+A run folder's layout belongs to `ifo.checkpoint` (saves are atomic and locked, readers
+size-check everything); a run's display name lives in `label.json`, so renaming never
+moves the folder that holds the weights. A damaged run is listed with what is wrong
+(`SavedRun.damaged`), never dropped silently, and can still be deleted.
 
-    runs_root()/<user>/<run id>/   config.json, LATEST, ckpt-*/, label.json
+    runs_root()/<user>/<run id>/   a run folder (see ifo.checkpoint): LATEST, ckpt-*/, label.json, ...
     runs_root()/<user>/demos/      <name>.npz + <name>.json (environment, summary)
 
 IFO_LAB_RUNS sets the root (default: runs/app inside the project). Finished example runs
@@ -18,17 +20,19 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import os
 import re
-import shutil
 import time
 import uuid
 import zipfile
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
+from ifo import checkpoint
 from ifo.io import atomic_write_json
+
+log = logging.getLogger(__name__)
 
 PROJECT = Path(__file__).resolve().parents[2]
 USER_PARAM = "user"
@@ -70,6 +74,7 @@ class SavedRun:
     iterations_done: int
     modified: float
     last: dict | None = None  # the last iteration's evaluation: aer, performance, goal_rate
+    damaged: str | None = None  # what is wrong with a run that cannot be opened (it can still be deleted)
 
     @property
     def iterations_total(self) -> int | None:
@@ -86,38 +91,20 @@ def run_path(user: str, run_id: str) -> Path:
     return _safe_child(user, run_id)
 
 
-def _records(path: Path) -> list[dict]:
-    """The records of the checkpoint a run folder's LATEST points to."""
-    ckpt = path / (path / "LATEST").read_text().strip()
-    return json.loads((ckpt / "records.json").read_text())
-
-
-@lru_cache(maxsize=512)
-def _summary(ckpt: Path) -> tuple[int, tuple | None]:
-    """Iterations done and the last evaluation of a checkpoint. A save never rewrites a
-    checkpoint folder (it makes a new one), so each is parsed once, not on every listing."""
-    records = json.loads((ckpt / "records.json").read_text())
-    last = tuple((k, records[-1]["evaluation"].get(k)) for k in ("aer", "performance", "goal_rate")) if records else None
-    return len(records), last
-
-
 def _read_saved(path: Path) -> SavedRun | None:
-    """A complete saved run in `path`, or None (half-written, damaged, not a run)."""
-    latest = path / "LATEST"
-    if not path.is_dir() or path.name.startswith(".") or not latest.exists():
+    """The run in `path` (damaged ones too, with what is wrong), or None when the folder holds no run."""
+    if path.name.startswith(".") or not path.is_dir():
         return None
     try:
-        config = json.loads((path / "config.json").read_text())
-        done, last = _summary(path / latest.read_text().strip())
-        label_file = path / "label.json"
-        label = json.loads(label_file.read_text())["label"] if label_file.exists() else path.name
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        info = checkpoint.inspect(path)
+    except checkpoint.NoRun:
         return None
-    return SavedRun(path.name, path, label, config, done, latest.stat().st_mtime, dict(last) if last else None)
+    return SavedRun(path.name, path, info.label, info.config, info.iterations_done, info.modified, info.last,
+                    info.damaged)
 
 
 def list_runs(user: str) -> list[SavedRun]:
-    """The user's saved runs, newest first. Folders without a complete save are skipped."""
+    """The user's saved runs, newest first; damaged ones are listed with `damaged` saying why."""
     folder = user_dir(user)
     if not folder.exists():
         return []
@@ -126,18 +113,22 @@ def list_runs(user: str) -> list[SavedRun]:
 
 
 def get_run(user: str, run_id: str) -> SavedRun:
-    """One saved run; FileNotFoundError if it is gone (deleted meanwhile) or incomplete."""
-    saved = _read_saved(_safe_child(user, run_id))
+    """One saved run; FileNotFoundError if it is gone (deleted meanwhile), DamagedRun (a ValueError)
+    saying what is wrong when it cannot be opened."""
+    path = _safe_child(user, run_id)
+    saved = _read_saved(path) if run_id != DEMOS_FOLDER else None
     if saved is None:
         raise FileNotFoundError(f"no saved run {run_id!r} (it may have been deleted)")
+    if saved.damaged:
+        raise checkpoint.DamagedRun(f"the run {run_id!r} is damaged: {saved.damaged}", saved.damaged)
     return saved
 
 
 def last_records(saved: SavedRun) -> list[dict]:
     """The records of a saved run's latest checkpoint ([] if unreadable)."""
     try:
-        return _records(saved.path)
-    except (OSError, ValueError):
+        return checkpoint.read_records(saved.path)
+    except (checkpoint.CheckpointError, OSError):
         return []
 
 
@@ -152,29 +143,31 @@ def rename_run(user: str, run_id: str, label: str) -> None:
     if len(label) > 120:
         raise ValueError("names are at most 120 characters")
     path = _safe_child(user, run_id)
-    if not (path / "LATEST").exists():
-        raise FileNotFoundError(f"no saved run {run_id!r}")
-    atomic_write_json(path / "label.json", {"label": label})
+    try:
+        checkpoint.write_label(path, label)
+    except checkpoint.NoRun:
+        raise FileNotFoundError(f"no saved run {run_id!r}") from None
 
 
 def delete_run(user: str, run_id: str) -> None:
+    """Delete a run, damaged ones too (renamed aside under the run's lock: it leaves the list at once)."""
     path = _safe_child(user, run_id)
-    if not path.exists():
-        raise FileNotFoundError(f"no saved run {run_id!r}")
-    trash = path.with_name(f".deleted-{run_id}-{uuid.uuid4().hex[:6]}")
-    path.rename(trash)  # one atomic step: the run disappears from the list at once
-    shutil.rmtree(trash, ignore_errors=True)
+    if run_id == DEMOS_FOLDER:
+        raise ValueError(f"not a run id: {run_id!r}")
+    try:
+        checkpoint.remove(path)
+    except checkpoint.NoRun:
+        raise FileNotFoundError(f"no saved run {run_id!r}") from None
 
 
 def zip_run(user: str, run_id: str) -> bytes:
-    """The run's folder (its latest checkpoint, configuration, label and demonstrations) as a ZIP."""
-    saved = get_run(user, run_id)
+    """The run as a ZIP of a run folder: its latest checkpoint, configuration, label and demonstrations."""
+    get_run(user, run_id)
+    files = checkpoint.snapshot(_safe_child(user, run_id))
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-        for f in sorted(saved.path.rglob("*")):
-            rel = f.relative_to(saved.path)
-            if f.is_file() and not any(part.startswith(".") for part in rel.parts):
-                zf.write(f, Path(run_id) / rel)
+        for rel in sorted(files):
+            zf.writestr(str(Path(run_id) / rel), files[rel])
     return buf.getvalue()
 
 
@@ -184,11 +177,15 @@ def shipped_root() -> Path:
 
 
 def list_shipped_runs() -> list[SavedRun]:
-    """The finished example runs in assets/runs, in name order."""
+    """The finished example runs in assets/runs, in name order (a damaged one is logged and left out)."""
     root = shipped_root()
     if not root.exists():
         return []
-    return sorted((r for r in map(_read_saved, root.iterdir()) if r is not None), key=lambda r: r.run_id)
+    runs = [r for r in map(_read_saved, root.iterdir()) if r is not None]
+    for r in runs:
+        if r.damaged:
+            log.warning("example run %s is damaged: %s", r.path, r.damaged)
+    return sorted((r for r in runs if not r.damaged), key=lambda r: r.run_id)
 
 
 def copy_shipped_run(user: str, name: str) -> str:
@@ -199,11 +196,7 @@ def copy_shipped_run(user: str, name: str) -> str:
     if source is None:
         raise FileNotFoundError(f"no example run {name!r}")
     run_id = f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:4]}"
-    target = _safe_child(user, run_id)
-    tmp = target.with_name(f".{run_id}.partial")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copytree(source.path, tmp, ignore=shutil.ignore_patterns(".*"))
-    tmp.rename(target)  # appears in the list only once complete
+    checkpoint.copy_run(source.path, _safe_child(user, run_id))  # appears in the list only once complete
     return run_id
 
 
@@ -341,8 +334,10 @@ def current_user() -> str:
 
 
 def save_run(run, user: str, run_id: str, label: str | None = None) -> Path:
+    """Save `run` as the user's run `run_id`. checkpoint.RunChanged (a ValueError) when another
+    session saved that run meanwhile, RunBusy when another one keeps saving it."""
     path = _safe_child(user, run_id)
     run.save(path)
-    if label is not None and not (path / "label.json").exists():
-        atomic_write_json(path / "label.json", {"label": label})
+    if label is not None:
+        checkpoint.write_label(path, label, replace=False)
     return path
