@@ -158,7 +158,9 @@ def cmd_bench(a: argparse.Namespace) -> int:
         from ifo.reproduce import reproduce
 
         if not a.table:
-            raise CliError("bench reproduce needs --table (5.1, 5.2, 6.1 or 6.2)")
+            from ifo.reproduce import TABLES
+
+            raise CliError(f"bench reproduce needs --table ({', '.join(TABLES)})")
         envs = a.envs.split(",") if a.envs else None
         extra = {"maze_eval_layouts": a.maze_eval_layouts} if a.maze_eval_layouts else {}
         if a.deadlock_guard:
@@ -247,7 +249,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
                         "table; speed: seconds per iteration and per phase; export: server-side figure export speed; "
                         "vanishing: BCO(α) against IUPE on CartPole with a small I_pre")
-    p.add_argument("--table", choices=["5.1", "5.2", "6.1", "6.2"], help="which thesis table to reproduce")
+    from ifo.reproduce import TABLES
+
+    p.add_argument("--table", choices=sorted(TABLES, key=lambda t: tuple(map(int, t.split(".")))),
+                   help="which thesis table to reproduce")
     p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
     p.add_argument("--out", help="also write the table (and the command that made it) to this file")
     p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"],

@@ -175,6 +175,7 @@ class Learner:
     """Base of the method families. A subclass sets `Config`, `phases` and `diagram`, builds its
     models in `__init__`, and lists what changes in `modules`, `optimizers` and `data_state()`."""
 
+    key: ClassVar[str]  # the name methods use for this family ("bco", "cril", ...)
     Config: ClassVar[type[LearnerConfig]]
     phases: ClassVar[tuple[Phase, ...]]
     diagram: ClassVar[object] = None  # an ifo.diagram.Diagram: boxes and arrows of its loop

@@ -132,6 +132,7 @@ def acting(model: torch.nn.Module, sample: bool, rng: np.random.Generator):
 
 
 class BCOLearner(Learner):
+    key = "bco"
     Config = BCOConfig
     phases = (
         Phase("idm", "training the inverse dynamics model (IDM) on I_s", "idm"),

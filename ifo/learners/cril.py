@@ -80,6 +80,7 @@ class CRILConfig(BCOConfig):
 
 
 class CRILLearner(BCOLearner):
+    key = "cril"
     Config = CRILConfig
     phases = (
         Phase("idm", "training the inverse dynamics model (IDM) on I_s", "idm"),

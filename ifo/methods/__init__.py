@@ -36,14 +36,26 @@ class Method:
         return self.learner_class.Config(**self.preset).fixed_iterations()
 
 
-from ifo.methods.bc import BC  # noqa: E402
-from ifo.methods.bco import BCO, BCO_ALPHA  # noqa: E402
-from ifo.methods.abco import ABCO  # noqa: E402
-from ifo.methods.iupe import IUPE  # noqa: E402
-from ifo.methods.cril import CRIL  # noqa: E402
+# Every module of this package is read for its Method objects (a new method is a new file), shown
+# in the thesis's order; the thesis's methods not found are "planned".
+ORDER = ("bc", "bco", "bco-alpha", "abco", "iupe", "cril", "sail", "gail", "gaifo", "ilpo")
 
-METHODS: dict[str, Method] = {m.name: m for m in (BC, BCO, BCO_ALPHA, ABCO, IUPE, CRIL)}
-PLANNED = ("sail", "gail", "gaifo", "ilpo")  # the thesis's other methods, not built yet
+
+def _discover() -> dict[str, Method]:
+    import importlib
+    import pkgutil
+
+    found = {}
+    for module in pkgutil.iter_modules(__path__):
+        for value in vars(importlib.import_module(f"{__name__}.{module.name}")).values():
+            if isinstance(value, Method):
+                found[value.name] = value
+    rank = {name: k for k, name in enumerate(ORDER)}
+    return dict(sorted(found.items(), key=lambda item: (rank.get(item[0], len(ORDER)), item[0])))
+
+
+METHODS: dict[str, Method] = _discover()
+PLANNED = tuple(name for name in ORDER if name not in METHODS)  # the thesis's methods not built yet
 
 
 class UnknownMethod(ValueError):

@@ -12,7 +12,7 @@ import numpy as np
 from ifo.config import RunConfig, configuration_label, switches
 from ifo.envs import get_env
 from ifo.methods import get_method
-from ifo.reproduce import NOT_IMPLEMENTED, TABLES, mean_sd, number
+from ifo.reproduce import TABLES, implemented, mean_sd, number
 from ifo.ui.settings import fast_overrides
 
 PRESET_TABLES = ("5.2", "6.2")
@@ -48,7 +48,7 @@ def thesis_numbers(config: RunConfig) -> tuple | None:
         if env not in table.envs:
             continue
         for row in table.rows:
-            if row.method in ("expert", "random") or row.method in NOT_IMPLEMENTED:
+            if row.method in ("expert", "random") or not implemented(row) or row.runner is not None:
                 continue
             if _kind(RunConfig.from_dict({"env": env, "method": row.method, **row.overrides})) != kind:
                 continue

@@ -1,18 +1,25 @@
-"""Reproduction benchmark: the thesis's Tables 5.1, 5.2, 6.1 and 6.2, ours beside theirs.
+"""Reproduction benchmark: the thesis's tables, ours beside theirs.
 
     python -m ifo bench reproduce --table 6.1 --seeds 3 [--envs cartpole,acrobot] [--out docs/...]
 
-Every row is a configuration of the one loop (ablation switches are plain fields), trained
-from scratch per seed; the table shows mean ± sd over seeds of Performance and AER at
-the last iteration, the thesis's numbers, and wall-clock seconds per run. Learners are
-evaluated with MAP actions; rows that explore are also evaluated with sampled actions
-(the authors reported IUPE's AER from stochastic rollouts).
+Every row is a configuration (ablation switches are plain fields), trained from scratch per
+seed; the table shows mean ± sd over seeds of Performance and AER at the last iteration, the
+thesis's numbers, and wall-clock seconds per run. Learners are evaluated with MAP actions;
+rows that explore are also evaluated with sampled actions (the authors reported IUPE's AER
+from stochastic rollouts).
+
+The tables themselves live one module per chapter in this package (`chapter5_6.py`, ...), each
+calling `register(Table(...))`; every module here is imported, so a new chapter is a new file.
+A row whose method is not built (and has no `runner` of its own) shows the thesis's numbers only.
 """
 from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass, field
+import importlib
+import pkgutil
+from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 
@@ -20,14 +27,13 @@ from ifo.config import RunConfig
 from ifo.envs import get_env
 from ifo.run import Run
 
-ENVS_5_1 = ("cartpole", "acrobot", "mountaincar", "maze3", "maze5", "maze10")
-
-
 @dataclass(frozen=True)
 class Row:
     label: str
-    method: str
-    overrides: dict = field(default_factory=dict)
+    method: str  # a method of ifo.methods, or "expert" / "random" (their reference returns)
+    overrides: dict = field(default_factory=dict)  # settings of this row (flat names)
+    runner: Callable | None = None  # runner(env, seed, iterations, **settings) -> result dict, for rows that
+    #                                 are not one of our runs (stable-baselines3's DQN and PPO, say)
 
 
 @dataclass(frozen=True)
@@ -37,65 +43,25 @@ class Table:
     rows: tuple[Row, ...]
     thesis: dict  # row label -> env -> (P, AER); None where the thesis has no number
     targets: dict = field(default_factory=dict)  # (row, env) -> (metric, threshold) from the issue
+    settings: dict = field(default_factory=dict)  # applied to every row (e.g. one expert episode)
+    table_id: str = ""  # "6.1": set by register()
 
 
-BC, BCO = Row("BC", "bc"), Row("BCO(α)", "bco-alpha")
-_T51 = {
-    "BC": [(1.000, 500.0), (1.071, -83.590), (1.560, -117.720), (-1.207, 0.180), (-0.921, -0.507), (-0.470, -1.000)],
-    "BCO(α)": [(1.000, 500.0), (0.980, -117.600), (0.948, -150.000), (0.883, 0.927), (-0.112, 0.104), (-0.416, -0.941)],
-    "ILPO": [(1.000, 500.0), (1.067, -85.300), (0.626, -167.000), (-1.711, -0.026), (-0.398, -0.059), (0.257, -0.020)],
-    "ABCO": [(1.000, 500.0), (1.086, -77.900), (1.289, -132.300), (1.159, 0.908), (0.960, 0.932), (0.860, 0.784)],
-}
-_T61 = {
-    "Expert": [(1.0, 442.628), (1.0, None), (1.0, -147.265), (1.0, 0.963), (1.0, 0.970), (1.0, 0.981)],
-    "Random": [(0.0, 18.700), (0.0, -482.600), (0.0, -200.000), (0.0, 0.557), (0.0, 0.166), (0.0, 0.415)],
-    "BC": [(1.135, 500.0), (1.071, -83.590), (1.560, -117.720), (-1.207, 0.180), (-0.921, -0.507), (-0.470, -1.000)],
-    "BCO(α)": [(1.135, 500.0), (0.980, -117.600), (0.948, -150.000), (0.883, 0.927), (-0.112, 0.104), (-0.416, -0.941)],
-    "ILPO": [(1.135, 500.0), (1.067, -85.300), (0.626, -167.000), (-1.711, -0.026), (-0.398, -0.059), (0.257, -0.020)],
-    "IUPE": [(1.135, 500.0), (1.086, -78.100), (1.314, -130.700), (1.361, 0.927), (1.000, 0.971), (1.000, 0.981)],
-}
+TABLES: dict[str, Table] = {}
 
 
-def _by_env(table: dict, envs=ENVS_5_1) -> dict:
-    return {row: dict(zip(envs, values)) for row, values in table.items()}
+def register(table_id: str, table: Table) -> Table:
+    """Add a thesis table (called by the chapter modules of this package)."""
+    if table_id in TABLES:
+        raise ValueError(f"table {table_id} is registered twice")
+    TABLES[table_id] = table = replace(table, table_id=table_id)
+    return table
 
 
-def _ablation(label: str, attention: bool = False, sampling: str = "none", exploration: bool = False) -> Row:
-    return Row(label, "bco-alpha", {"attention": "gated" if attention else "none", "sampling": sampling,
-                               "explore_labels": exploration, "explore_rollouts": exploration})
+def implemented(row: Row) -> bool:
+    from ifo.methods import METHODS
 
-
-TABLES: dict[str, Table] = {
-    "5.1": Table("Table 5.1: ABCO against related work", ENVS_5_1,
-                 (BC, BCO, Row("ILPO", "ilpo"), Row("ABCO", "abco")), _by_env(_T51)),
-    "6.1": Table("Table 6.1: IUPE against related work", ENVS_5_1,
-                 (Row("Expert", "expert"), Row("Random", "random"), BC, BCO, Row("ILPO", "ilpo"), Row("IUPE", "iupe")),
-                 _by_env(_T61),
-                 targets={("IUPE", "cartpole"): ("aer", 500.0), ("IUPE", "acrobot"): ("aer", -90.0),
-                          ("IUPE", "mountaincar"): ("aer", -140.0), ("IUPE", "maze3"): ("performance", 0.95),
-                          ("IUPE", "maze5"): ("performance", 0.95), ("IUPE", "maze10"): ("performance", 0.8)}),
-    "5.2": Table("Table 5.2: ABCO ablation on the 5×5 maze", ("maze5",), (
-        _ablation("BCO(α)"), _ablation("Attention", attention=True),
-        _ablation("Partial Sampling", sampling="abco"), _ablation("Whole Sampling", sampling="abco-whole"),
-        _ablation("ABCO (Attention + Partial Sampling)", attention=True, sampling="abco"),
-        _ablation("ABCO (Attention + Whole Sampling)", attention=True, sampling="abco-whole")),
-        {"BCO(α)": {"maze5": (-0.112, -0.941)}, "Attention": {"maze5": (-0.415, -0.940)},
-         "Partial Sampling": {"maze5": (0.717, 0.716)}, "Whole Sampling": {"maze5": (0.628, 0.676)},
-         "ABCO (Attention + Partial Sampling)": {"maze5": (0.960, 0.932)},
-         "ABCO (Attention + Whole Sampling)": {"maze5": (0.759, 0.755)}}),
-    "6.2": Table("Table 6.2: IUPE ablation on the 10×10 maze", ("maze10",), (
-        _ablation("BCO(α)"), _ablation("Attention", attention=True), _ablation("Sampling", sampling="iupe"),
-        _ablation("Exploration", exploration=True), _ablation("Attention + Sampling", attention=True, sampling="iupe"),
-        _ablation("Attention + Exploration", attention=True, exploration=True),
-        _ablation("Sampling + Exploration", sampling="iupe", exploration=True),
-        _ablation("IUPE (Attention + Sampling + Exploration)", attention=True, sampling="iupe", exploration=True)),
-        {"BCO(α)": {"maze10": (-0.416, -0.941)}, "Attention": {"maze10": (-0.415, -0.940)},
-         "Sampling": {"maze10": (0.534, 0.348)}, "Exploration": {"maze10": (0.734, 0.605)},
-         "Attention + Sampling": {"maze10": (0.367, 0.088)}, "Attention + Exploration": {"maze10": (-0.407, -0.921)},
-         "Sampling + Exploration": {"maze10": (0.943, 0.901)},
-         "IUPE (Attention + Sampling + Exploration)": {"maze10": (1.000, 0.981)}}),
-}
-NOT_IMPLEMENTED = {"ilpo"}
+    return row.runner is not None or row.method in ("expert", "random") or row.method in METHODS
 
 
 def run_row(row: Row, env: str, seed: int, iterations: int | None, **extra) -> dict:
@@ -105,6 +71,8 @@ def run_row(row: Row, env: str, seed: int, iterations: int | None, **extra) -> d
         refs = spec.references()
         aer = refs.get(f"{row.method}_aer")
         return {"aer": aer, "performance": 1.0 if row.method == "expert" else 0.0, "seconds": 0.0}
+    if row.runner is not None:
+        return row.runner(env, seed, iterations, **row.overrides, **extra)
     start = time.perf_counter()
     run = Run(RunConfig.from_dict({"env": env, "method": row.method, "seed": seed, "iterations": iterations,
                                    **row.overrides, **extra}))
@@ -158,13 +126,13 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
     for row in table.rows:
         for env in env_names:
             theirs = table.thesis.get(row.label, {}).get(env, (None, None))
-            if row.method in NOT_IMPLEMENTED:
+            if not implemented(row):
                 out.append(f"| {row.label} | {env} | not implemented | {number(theirs[0])} | — | {number(theirs[1])} "
                            f"| — | — | |")
                 continue
             results = []
             for seed in range(seeds if row.method not in ("expert", "random") else 1):
-                r = run_row(row, env, seed, iterations, **extra)
+                r = run_row(row, env, seed, iterations, **{**table.settings, **extra})
                 results.append(r)
                 log(f"[{table_id}] {row.label} on {env}, seed {seed}: P {r['performance']} AER {r['aer']} "
                     f"({r['seconds']:.0f} s)")
@@ -181,5 +149,10 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
                 f"| {np.mean([r['seconds'] for r in results]):.0f} | {verdict} |")
     out += ["", f"Seeds: {seeds}. Iterations: {'per-environment defaults' if iterations is None else iterations}. "
             f"P and AER at the last iteration over 100 evaluation episodes (MAP actions; {_protocol(extra)}). "
-            "ILPO is not implemented yet. The thesis's BCO rows are compared with our BCO(α)."]
+            "Rows marked 'not implemented' show the thesis's numbers only. The thesis's BCO rows are compared with "
+            "our BCO(α)."]
     return "\n".join(out)
+
+
+for _module in pkgutil.iter_modules(__path__):  # every chapter's tables
+    importlib.import_module(f"{__name__}.{_module.name}")
