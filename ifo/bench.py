@@ -91,10 +91,10 @@ def export_table(run_dir: str | None = None, log=lambda msg: print(msg, file=sys
     if run_dir is None:
         run = Run(RunConfig.from_dict(dict(env="cartpole", method="iupe", iterations=2, **QUICK)))
         run.run()
-        records, config, names = run.records, run.config.to_dict(), run.spec.action_names
+        records, config = run.records, run.config.to_dict()
     else:
-        records, config, names = export.load_run_files(run_dir)
-    figs = export.run_figures(records, names)
+        records, config, _ = export.load_run_files(run_dir)
+    figs = export.run_figures(records, config)
     start = time.perf_counter()
     export.figure_bytes(next(iter(figs.values())), "svg")  # starts the browser
     lines = [f"browser start and first figure: {time.perf_counter() - start:.2f} s", "",
@@ -108,7 +108,7 @@ def export_table(run_dir: str | None = None, log=lambda msg: print(msg, file=sys
         log(f"{fmt}: {np.median(times):.2f} s per figure")
         lines.append(f"| {fmt} | {len(times)} | {np.median(times):.2f} | {max(times):.2f} |")
     t = time.perf_counter()
-    size = len(export.slide_pack(records, config, names))
+    size = len(export.slide_pack(records, config))
     lines += ["", f"slide pack ({len(figs)} figures × {len(export.FORMATS)} formats, {size / 2**20:.1f} MiB): "
               f"{time.perf_counter() - t:.2f} s"]
     return "\n".join(lines)

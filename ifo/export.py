@@ -12,10 +12,10 @@ own thread with its own event loop, so `figure_bytes` may be called from any thr
 (Streamlit runs deferred downloads on worker threads) and never blocks forever: a browser
 that does not start within `START_TIMEOUT` seconds gives `ExportUnavailable`.
 
-    run_figures(records, action_names)          one list of figures, the app's and the CLI's
+    run_figures(records, config)                one list of figures, the app's and the CLI's
     figure_bytes(fig, "svg" | "png" | "pdf")    bytes of one figure
     metrics_csv(records)                        one row per iteration
-    slide_pack(records, config, action_names)   ZIP: figures/, metrics.csv, config.json, README.txt
+    slide_pack(records, config)                 ZIP: figures/, metrics.csv, config.json, README.txt
     export_run(run_dir, out_dir)                the same files written to a folder
 
 No streamlit here (see ifo/ui/export.py).
@@ -66,16 +66,6 @@ _TYPICAL_PATHS = (
     r"C:\Program Files (x86)\Google\Chrome\Application\chrome.exe",
     r"C:\Program Files (x86)\Microsoft\Edge\Application\msedge.exe",
 )
-
-# Names of the state variables, for the attention-over-variables figure (vector observations).
-
-
-def _feature_names(env: str) -> tuple[str, ...]:
-    try:
-        return get_env(env).feature_names
-    except ValueError:
-        return ()
-
 
 class ExportError(RuntimeError):
     """A figure could not be rendered."""
@@ -283,77 +273,32 @@ def slide_theme(fig: go.Figure) -> go.Figure:
     return out
 
 
-def _grad_cam_frames(records: Sequence[dict]):
-    cam = records[-1].get("attention", {}).get("grad_cam") or {}
-    if not cam.get("maps") or "size" not in cam or "image_size" not in cam:
-        return None
-    try:
-        from ifo.probes import maze_probe_frames
+def run_figures(records: Sequence[dict], config: dict, theme: str = "slide") -> dict[str, go.Figure]:
+    """Every figure these records can show, by name, in slide order: the figure registry's choice
+    (`ifo.figure_registry`), the one the app's panels make too. `config` is the run's configuration
+    (names of actions and state variables, maze sizes). Empty records give no figures."""
+    from ifo.figure_registry import EnvView, views_for
 
-        return maze_probe_frames(cam["size"], cam["image_size"], len(cam["maps"]))
-    except Exception:  # noqa: BLE001 - the heatmaps alone still make the figure
-        return None
-
-
-def run_figures(records: Sequence[dict], action_names: Sequence[str], theme: str = "slide", *,
-                feature_names: Sequence[str] | None = None) -> dict[str, go.Figure]:
-    """Every figure that applies to these records, by name, in slide order. The app and the
-    command line export exactly this set. `feature_names` labels the state variables in the
-    attention figure (default: s[0], s[1], ...). Empty records give no figures."""
-    if not records:
-        return {}
-    last = records[-1]
-    names = list(action_names)
-    out: dict[str, go.Figure] = {"aer": figures.learning_curve(records, "aer", theme=theme)}
-    if any(r["evaluation"].get("performance") is not None for r in records):
-        out["performance"] = figures.learning_curve(records, "performance", theme=theme)
-    if "idm" in last:
-        out["idm_predictions"] = figures.idm_predictions(records, names, theme=theme)
-    if any("idm" in r for r in records):
-        out["idm_predictions_over_time"] = figures.idm_predictions_over_time(records, names, theme=theme)
-    out["accuracy"] = figures.accuracy_curves(records, theme=theme)
-    if any("rollouts" in r for r in records):
-        out["win_probability"] = figures.win_probability(records, theme=theme)
-    if any(r.get("labels", {}).get("exploration_rate") is not None
-           or r.get("rollouts", {}).get("exploration_rate") is not None for r in records):
-        out["exploration_rate"] = figures.exploration_rate(records, theme=theme)
-    if "sampling" in last:
-        out["sampling_mixture"] = figures.sampling_mixture(records, names, theme=theme)
-    out["phase_seconds"] = figures.phase_seconds(records, theme=theme)
-    if (last.get("attention", {}).get("grad_cam") or {}).get("maps"):
-        out["grad_cam"] = figures.grad_cam_panel(records, theme=theme, frames=_grad_cam_frames(records),
-                                                 action_names=names)
-    if last.get("policy", {}).get("attention") or last.get("idm", {}).get("attention"):
-        out["state_attention"] = figures.state_attention(records, list(feature_names or []), theme=theme)
-    if any(r.get("attention", {}).get("mean_image_distance") for r in records):
-        out["action_distance"] = figures.action_distance_curves(records, names, theme=theme)
-    return out
+    env = EnvView.of(config)
+    return {view.key: view.draw(records, env, None, theme) for view in views_for(records)}
 
 
 # ----------------------------------------------------------------------------- metrics and the pack
-METRIC_COLUMNS = (
-    "iteration", "aer", "aer_std", "performance", "goal_rate", "fidelity",
-    "idm_val_accuracy", "idm_expert_accuracy", "policy_agreement", "policy_expert_accuracy",
-    "win_probability", "label_exploration_rate", "rollout_exploration_rate",
-    "idm_train_size", "sampling_from_pre", "sampling_from_pos", "sampling_size", "seconds_total",
-)
+def _scalars(section: dict, prefix: str) -> dict:
+    return {f"{prefix}.{k}": v for k, v in section.items() if isinstance(v, (int, float, bool)) or v is None}
 
 
-def _metric_row(r: dict) -> dict:
-    ev, idm, pol = r.get("evaluation", {}), r.get("idm", {}), r.get("policy", {})
-    labels, ro, mix = r.get("labels", {}), r.get("rollouts", {}), r.get("sampling")
-    return {
-        "iteration": r["iteration"], "aer": ev.get("aer"), "aer_std": ev.get("aer_std"),
-        "performance": ev.get("performance"), "goal_rate": ev.get("goal_rate"), "fidelity": ev.get("fidelity"),
-        "idm_val_accuracy": idm.get("val_accuracy"), "idm_expert_accuracy": idm.get("expert_accuracy"),
-        "policy_agreement": pol.get("agreement"), "policy_expert_accuracy": pol.get("expert_accuracy"),
-        "win_probability": ro.get("win_probability"), "label_exploration_rate": labels.get("exploration_rate"),
-        "rollout_exploration_rate": ro.get("exploration_rate"), "idm_train_size": idm.get("train_size"),
-        "sampling_from_pre": sum(mix["from_pre"]) if mix else None,
-        "sampling_from_pos": sum(mix["from_pos"]) if mix else None,
-        "sampling_size": mix.get("size") if mix else None,
-        "seconds_total": r.get("seconds", {}).get("total"),
-    }
+def metric_columns(records: Sequence[dict]) -> list[str]:
+    """iteration, then every scalar of every section these records have (section.field), in the
+    sections' order: the columns follow the method, whichever it is."""
+    from ifo.records import SECTIONS
+
+    columns: dict[str, None] = {"iteration": None}
+    for section in SECTIONS:
+        for r in records:
+            if isinstance(r.get(section), dict):
+                columns.update(dict.fromkeys(_scalars(r[section], section)))
+    return list(columns)
 
 
 def _cell(v) -> str:
@@ -365,18 +310,24 @@ def _cell(v) -> str:
 
 
 def metrics_csv(records: Sequence[dict]) -> str:
-    """One row per iteration (columns `METRIC_COLUMNS`); empty cells where a method has no such number."""
+    """One row per iteration, one column per scalar of the records' sections (`metric_columns`);
+    empty cells where an iteration has no such number."""
+    columns = metric_columns(records)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(METRIC_COLUMNS)
+    w.writerow(columns)
     for r in records:
-        row = _metric_row(r)
-        w.writerow([_cell(row[c]) for c in METRIC_COLUMNS])
+        row = {"iteration": r["iteration"]}
+        for section, value in r.items():
+            if isinstance(value, dict):
+                row.update(_scalars(value, section))
+        w.writerow([_cell(row.get(c)) for c in columns])
     return buf.getvalue()
 
 
 def _readme(records: Sequence[dict], config: dict, names: Sequence[str], formats: Sequence[str],
             run_dir: str | None) -> str:
+    columns = metric_columns(records)
     ev = records[-1]["evaluation"] if records else {}
     perf = ev.get("performance")
     summary = (f"after {len(records)} iteration(s): AER {ev['aer']:.2f} ± {ev['aer_std']:.2f}, "
@@ -394,7 +345,7 @@ Inside
   figures/      every chart of the run, 16:9 (1600x900) with large fonts:
                 SVG (vector, for slides), PNG ({PNG_SCALE}x: {PNG_SCALE * SLIDE_WIDTH}x{PNG_SCALE * SLIDE_HEIGHT} px), PDF
 {fig_lines}
-  metrics.csv   one row per iteration: {', '.join(METRIC_COLUMNS)}
+  metrics.csv   one row per iteration, {len(columns)} columns (section.field: {', '.join(columns[:6])}, ...)
                 (empty cell: the method has no such number, e.g. no IDM in BC)
   config.json   the run's full configuration (RunConfig.to_dict())
 
@@ -423,33 +374,32 @@ def _check_formats(formats: Sequence[str] | str) -> tuple[str, ...]:
     return out
 
 
-def pack_files(records: Sequence[dict], config: dict, action_names: Sequence[str],
-               formats: Sequence[str] = FORMATS, *, run_dir: str | None = None) -> dict[str, bytes]:
+def pack_files(records: Sequence[dict], config: dict, formats: Sequence[str] = FORMATS, *,
+               run_dir: str | None = None) -> dict[str, bytes]:
     """The slide pack's files by relative path (figures/<name>.<fmt>, metrics.csv, config.json, README.txt).
     Empty `formats`: no figures (and no browser needed)."""
     formats = _check_formats(formats) if formats else ()
-    figs = run_figures(records, action_names, "slide", feature_names=_feature_names(config.get("env", "")))
+    figs = run_figures(records, config, "slide") if formats else {}
     files = {f"figures/{k}": v for k, v in render_all(figs, formats).items()} if formats else {}
-    figs = figs if formats else {}
     files["metrics.csv"] = metrics_csv(records).encode("utf-8")
     files["config.json"] = json.dumps(config, indent=1, sort_keys=True).encode("utf-8")
     files["README.txt"] = _readme(records, config, list(figs), formats, run_dir).encode("utf-8")
     return files
 
 
-def slide_pack(records: Sequence[dict], config: dict, action_names: Sequence[str],
+def slide_pack(records: Sequence[dict], config: dict,
                formats: Sequence[str] = FORMATS, *, run_dir: str | None = None) -> bytes:
     """One ZIP: figures/<name>.<fmt> for every figure of `run_figures`, metrics.csv, config.json, README.txt."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
-        for path, data in pack_files(records, config, action_names, formats, run_dir=run_dir).items():
+        for path, data in pack_files(records, config, formats, run_dir=run_dir).items():
             z.writestr(path, data)
     return buf.getvalue()
 
 
 # What the figures, metrics.csv and README read without a default: a record without one is refused
 # with a clear message rather than a KeyError deep inside plotting.
-RECORD_FIELDS = ("iteration", "evaluation", "policy", "seconds")
+RECORD_FIELDS = ("iteration", "evaluation", "seconds")
 EVALUATION_FIELDS = ("aer", "aer_std", "goal_rate")
 
 
@@ -508,9 +458,9 @@ def export_run(run_dir: str | os.PathLike, out_dir: str | os.PathLike, formats: 
     try:
         if as_zip:
             path = out / f"{Path(run_dir).resolve().name}-slides.zip"
-            atomic_write_bytes(path, slide_pack(records, config, names, formats, run_dir=str(run_dir)))
+            atomic_write_bytes(path, slide_pack(records, config, formats, run_dir=str(run_dir)))
             return [path]
-        files = pack_files(records, config, names, formats, run_dir=str(run_dir))
+        files = pack_files(records, config, formats, run_dir=str(run_dir))
     except KeyError as exc:  # a field check_records does not know the figures need
         raise ValueError(f"{run_dir}: the saved records lack {exc} (needed for the figures)") from exc
     written = []

@@ -177,8 +177,8 @@ def accuracy_curves(records: Sequence[dict], iteration: int | None = None, theme
     series = [
         ("IDM on I_pre validation", lambda r: r.get("idm", {}).get("val_accuracy")),
         ("pseudo-labels vs hidden truth", lambda r: r.get("idm", {}).get("expert_accuracy")),
-        ("policy agrees with its labels", lambda r: r["policy"].get("agreement")),
-        ("policy vs hidden truth", lambda r: r["policy"].get("expert_accuracy")),
+        ("policy agrees with its labels", lambda r: r.get("policy", {}).get("agreement")),
+        ("policy vs hidden truth", lambda r: r.get("policy", {}).get("expert_accuracy")),
     ]
     fig = go.Figure()
     for k, (name, get) in enumerate(series):

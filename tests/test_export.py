@@ -25,8 +25,9 @@ from ifo.envs import get_env
 from ifo.run import Run
 
 needs_chromium = pytest.mark.skipif(export.find_chromium() is None, reason="no Chromium on this machine")
-BCO_ALPHA_FIGURES = ["aer", "performance", "idm_predictions", "idm_predictions_over_time", "accuracy",
-                     "win_probability", "exploration_rate", "sampling_mixture", "phase_seconds"]
+# the figure registry's choice for BCO(α)'s records, as on the step page, plus where the time goes
+BCO_ALPHA_FIGURES = ["aer", "performance", "idm", "idm_over_time", "idm_confusion", "idm_confidence", "accuracy",
+                     "sampling", "sampling_share", "win", "phase_seconds"]
 
 
 @pytest.fixture(scope="module")
@@ -52,13 +53,13 @@ def check_svg(data: bytes) -> None:
 # ----------------------------------------------------------------------------- library
 def test_run_figures_lists_every_figure_that_applies_in_the_slide_theme(saved_run):
     run, _ = saved_run
-    figs = export.run_figures(run.records, run.spec.action_names)
+    figs = export.run_figures(run.records, run.config.to_dict())
     assert list(figs) == BCO_ALPHA_FIGURES
     for fig in figs.values():
         assert isinstance(fig, go.Figure)
         assert (fig.layout.width, fig.layout.height) == (1600, 900) and fig.layout.font.size >= 20
-    assert export.run_figures([], run.spec.action_names) == {}
-    screen = export.run_figures(run.records, run.spec.action_names, theme="screen")
+    assert export.run_figures([], run.config.to_dict()) == {}
+    screen = export.run_figures(run.records, run.config.to_dict(), theme="screen")
     assert list(screen) == BCO_ALPHA_FIGURES and screen["aer"].layout.width is None
 
 
@@ -68,7 +69,7 @@ def test_run_figures_adds_attention_figures_only_when_records_have_them(saved_ru
     records[-1]["policy"]["attention"] = [0.4, 0.2, 0.2, 0.2]
     records[-1]["attention"] = {"grad_cam": {"maps": [[[0.0, 1.0], [0.5, 0.2]]], "actions": [1],
                                              "probabilities": [[0.3, 0.7]]}}
-    figs = export.run_figures(records, run.spec.action_names, feature_names=get_env("cartpole").feature_names)
+    figs = export.run_figures(records, run.config.to_dict())
     assert {"state_attention", "grad_cam"} <= set(figs) and "action_distance" not in figs
     assert list(figs["state_attention"].data[0].x) == list(get_env("cartpole").feature_names)
 
@@ -83,7 +84,7 @@ def test_slide_theme_copy_leaves_the_screen_figure_alone():
 @needs_chromium
 def test_svg_png_pdf_bytes(saved_run):
     run, _ = saved_run
-    fig = export.run_figures(run.records, run.spec.action_names)["aer"]
+    fig = export.run_figures(run.records, run.config.to_dict())["aer"]
     check_svg(export.figure_bytes(fig, "svg"))
     width, height = png_size(export.figure_bytes(fig, "png"))
     assert width >= 1600 and width * 9 == height * 16  # high resolution, 16:9
@@ -95,24 +96,28 @@ def test_svg_png_pdf_bytes(saved_run):
 def test_metrics_csv_has_one_row_per_iteration(saved_run):
     run, _ = saved_run
     rows = list(csv.DictReader(io.StringIO(export.metrics_csv(run.records))))
-    assert len(rows) == 2 and list(rows[0]) == list(export.METRIC_COLUMNS)
+    assert len(rows) == 2 and list(rows[0]) == export.metric_columns(run.records)
     for row, rec in zip(rows, run.records):
         assert int(row["iteration"]) == rec["iteration"]
-        assert float(row["aer"]) == pytest.approx(rec["evaluation"]["aer"], rel=1e-5)
-        assert float(row["idm_val_accuracy"]) == pytest.approx(rec["idm"]["val_accuracy"], rel=1e-5)
-        assert float(row["win_probability"]) == pytest.approx(rec["rollouts"]["win_probability"], rel=1e-5)
-        assert int(row["sampling_size"]) == rec["sampling"]["size"]
-        assert float(row["seconds_total"]) == pytest.approx(rec["seconds"]["total"], rel=1e-5)
-    bc = [{"iteration": 1, "policy": {"agreement": 1.0}, "evaluation": {"aer": 9.0, "aer_std": 1.0}}]
-    row = next(csv.DictReader(io.StringIO(export.metrics_csv(bc))))
-    assert row["aer"] == "9" and row["idm_val_accuracy"] == "" and row["win_probability"] == ""
+        assert float(row["evaluation.aer"]) == pytest.approx(rec["evaluation"]["aer"], rel=1e-5)
+        assert float(row["idm.val_accuracy"]) == pytest.approx(rec["idm"]["val_accuracy"], rel=1e-5)
+        assert float(row["rollouts.win_probability"]) == pytest.approx(rec["rollouts"]["win_probability"], rel=1e-5)
+        assert int(row["sampling.size"]) == rec["sampling"]["size"]
+        assert float(row["sampling.realised_share"]) == pytest.approx(rec["sampling"]["realised_share"], rel=1e-5)
+        assert float(row["seconds.total"]) == pytest.approx(rec["seconds"]["total"], rel=1e-5)
+    # the columns follow the sections a method's records have: a TD section brings its own
+    records = [{"iteration": 1, "policy": {"agreement": 1.0}, "evaluation": {"aer": 9.0, "aer_std": 1.0}},
+               {"iteration": 2, "td": {"loss": 0.5, "epsilon": 0.1}, "evaluation": {"aer": 10.0, "aer_std": 1.0}}]
+    rows = list(csv.DictReader(io.StringIO(export.metrics_csv(records))))
+    assert rows[0]["evaluation.aer"] == "9" and rows[0]["td.epsilon"] == "" and rows[1]["td.epsilon"] == "0.1"
+    assert "idm.val_accuracy" not in rows[0]
 
 
 @needs_chromium
 def test_slide_pack_zip(saved_run):
     run, _ = saved_run
     config = run.config.to_dict()
-    data = export.slide_pack(run.records, config, run.spec.action_names)
+    data = export.slide_pack(run.records, config)
     with zipfile.ZipFile(io.BytesIO(data)) as z:
         names = set(z.namelist())
         expected = {f"figures/{n}.{f}" for n in BCO_ALPHA_FIGURES for f in ("svg", "png", "pdf")}
@@ -130,7 +135,7 @@ def test_slide_pack_zip(saved_run):
 def test_a_pack_without_formats_needs_no_browser(saved_run, monkeypatch):
     run, _ = saved_run
     monkeypatch.setattr(export, "find_chromium", lambda: None)
-    with zipfile.ZipFile(io.BytesIO(export.slide_pack(run.records, run.config.to_dict(), run.spec.action_names,
+    with zipfile.ZipFile(io.BytesIO(export.slide_pack(run.records, run.config.to_dict(),
                                                       formats=()))) as z:
         assert set(z.namelist()) == {"metrics.csv", "config.json", "README.txt"}
 
@@ -191,7 +196,7 @@ def one_error_line(capsys) -> str:
 @pytest.mark.parametrize("edit, message", [
     (lambda r: r.pop("evaluation"), "record 2 of 2 lacks evaluation;"),
     (lambda r: r["evaluation"].pop("aer"), "record 2 of 2 lacks evaluation.aer;"),
-    (lambda r: r.pop("policy"), "record 2 of 2 lacks policy;"),
+    (lambda r: r.pop("seconds"), "record 2 of 2 lacks seconds;"),
     (lambda r: r.update(evaluation=[1, 2]), "record 2 of 2 lacks evaluation (not a mapping)"),
 ])
 def test_records_that_lack_a_field_give_one_clear_error(saved_run, tmp_path, capsys, edit, message):
@@ -242,7 +247,7 @@ def test_no_chromium_raises_export_unavailable_with_the_fix(saved_run, monkeypat
     monkeypatch.setenv("BROWSER_PATH", missing)
     assert export.find_chromium() != missing  # a wrong BROWSER_PATH is skipped, not trusted
     monkeypatch.setattr(export, "find_chromium", lambda: None)  # and no chromium anywhere
-    fig = export.run_figures(run.records, run.spec.action_names)["aer"]
+    fig = export.run_figures(run.records, run.config.to_dict())["aer"]
     with pytest.raises(export.ExportUnavailable) as err:
         export.figure_bytes(fig, "svg")
     message = str(err.value)
@@ -251,7 +256,7 @@ def test_no_chromium_raises_export_unavailable_with_the_fix(saved_run, monkeypat
     assert missing in message  # says the BROWSER_PATH it was given is wrong
     assert export.export_problem() == message
     with pytest.raises(export.ExportUnavailable):
-        export.slide_pack(run.records, run.config.to_dict(), run.spec.action_names)
+        export.slide_pack(run.records, run.config.to_dict())
     assert main(["export", str(directory), "--out", str(tmp_path / "o")]) == 2
     assert capsys.readouterr().err.startswith("error: No Chromium found")
     assert not (tmp_path / "o").exists()
@@ -266,7 +271,7 @@ def _downloads_app():
 
     records = st.session_state.get("records", [])
     chart_downloads(go.Figure(go.Scatter(x=[1, 2], y=[3, 4])), "learning curve", key="aer.dl")
-    slide_pack_download(records, {"env": "cartpole", "method": "bco-alpha", "seed": 0}, ["left", "right"],
+    slide_pack_download(records, {"env": "cartpole", "method": "bco-alpha", "seed": 0},
                         key="pack")
     st.session_state["media"] = runtime.get_instance().media_file_mgr  # to click a deferred download
 

@@ -9,7 +9,7 @@ with many charts pays nothing per rerun. Without a usable Chromium the helpers s
     chart_downloads(fig, "aer", key="step.aer.dl")                        # slide theme on a copy
     chart_downloads(fig, "aer", key="step.aer.dl",
                     draw=functools.partial(figures.learning_curve, records, "aer"))  # redrawn with theme="slide"
-    slide_pack_download(records, run.config.to_dict(), run.spec.action_names, key="step.pack")
+    slide_pack_download(records, run.config.to_dict(), key="step.pack")
 """
 from __future__ import annotations
 
@@ -71,13 +71,13 @@ def chart_downloads(fig: go.Figure, name: str, key: str, *, draw: Callable[..., 
                                icon=":material/download:")
 
 
-def slide_pack_download(records: Sequence[dict], config: dict, action_names: Sequence[str], key: str, *,
+def slide_pack_download(records: Sequence[dict], config: dict, key: str, *,
                         formats: Sequence[str] = export.FORMATS, run_dir: str | None = None,
                         label: str = "Slide pack (ZIP)") -> None:
     """One download button for the run's slide pack: every figure of `export.run_figures` as
     SVG, PNG and PDF, metrics.csv, config.json and a README (built on click: a few seconds).
     Without Chromium: an `st.info`, and the same ZIP without figures (metrics, configuration)."""
-    records, config, names = list(records), dict(config), list(action_names)
+    records, config = list(records), dict(config)
     stem = _file_stem(f"{config.get('env', 'run')}-{config.get('method', '')}-s{config.get('seed', 0)}-slides")
     problem = export.export_problem()
     if problem is not None:
@@ -87,7 +87,7 @@ def slide_pack_download(records: Sequence[dict], config: dict, action_names: Seq
         label = "Metrics and configuration (ZIP)"
 
     def data() -> bytes:
-        return export.slide_pack(records, config, names, formats, run_dir=run_dir)
+        return export.slide_pack(records, config, formats, run_dir=run_dir)
 
     st.download_button(label, data=data, file_name=f"{stem}.zip", mime="application/zip", key=key,
                        on_click="ignore", icon=":material/folder_zip:", disabled=not records,

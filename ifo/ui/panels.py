@@ -103,7 +103,7 @@ def draw_panels(panels, ctx: PanelContext, columns: int = 2) -> None:
                 flush()
     flush()
     if ctx.records and ctx.run is not None:
-        slide_pack_download(ctx.records, ctx.run.config.to_dict(), ctx.run.spec.action_names, key="export.pack")
+        slide_pack_download(ctx.records, ctx.run.config.to_dict(), key="export.pack")
 
 
 def _one(panel, ctx: PanelContext) -> None:
