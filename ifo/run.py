@@ -29,7 +29,7 @@ from ifo.learners.base import Context, HiddenTruth, StepCancelled
 from ifo.methods import get_method
 from ifo.metrics import aer, performance, trajectory_fidelity
 from ifo.probes import policy_map_record
-from ifo.seeds import EVAL_SEED_BASE, Seeds, evaluation_seeds  # noqa: F401  (EVAL_SEED_BASE: for video)
+from ifo.seeds import Seeds, evaluation_seeds
 
 Progress = Callable[[str, int], None]  # (phase name, iteration) -> None
 DEMONSTRATION_LAYOUTS = 100  # the shipped maze demonstrations come from the training pool's first 100 layouts
@@ -47,7 +47,8 @@ class Run:
         self.method = get_method(cfg.method)
         self.progress = progress
         self._cancel = threading.Event()
-        torch.manual_seed(cfg.seed)  # the networks' initial weights
+        seeds = Seeds(cfg.seed)
+        torch.manual_seed(seeds.torch_seed("init"))  # the networks' initial weights
         self.pool, self.eval_pool = self._pools()
 
         # T_e: expert state pairs. The true actions stay in HiddenTruth (diagnostics) unless the
@@ -65,7 +66,7 @@ class Run:
         self.demos = demos.first_episodes(cfg.expert_episodes)
         self.references = self._references()
         self.ctx = Context(spec, cfg, self.pool, self.demos.transitions,
-                           HiddenTruth(self.demos.hidden_actions, spec.n_actions), Seeds(cfg.seed),
+                           HiddenTruth(self.demos.hidden_actions, spec.n_actions), seeds,
                            expert_actions=self.demos.hidden_actions if self.method.sees_expert_actions else None,
                            expert_returns=self.demos.episode_returns, on_phase=self._on_phase)
         self.learner = self.method.learner_class(self.ctx, cfg.learner)

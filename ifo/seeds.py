@@ -1,13 +1,19 @@
-"""Every random number a run uses comes from one of these named streams of its seed.
+"""Every random number a run uses comes from one of these named, disjoint streams of its seed.
 
     seeds = Seeds(run_seed)
-    seeds.rng("pre")                   numpy Generator for building I_pre
+    seeds.rng("init")                  the networks' initial weights
+    seeds.rng("pre")                   building I_pre
     seeds.rng("iteration", i)          everything random inside iteration i (one stream per iteration)
     seeds.episodes("rollouts", n, i)   environment seeds of the i-th batch of n policy runs
     evaluation_seeds(n)                the same held-out episodes for every run (fixed, not per seed)
 
-Same seed, same numbers; and a run can be resumed at any iteration, because iteration i's
-stream does not depend on what earlier iterations drew.
+Streams are `numpy.random.SeedSequence(seed, spawn_key=(stream, *index))`, which is exactly what
+`SeedSequence.spawn` does: independent whatever the seed. Environment seeds of the learner's own
+episodes are drawn from 2^48-wide ranges, one per stream and all above 2^48, so they never meet
+each other, the evaluation episodes (10^9 + k) or the demonstrations' episodes (0, 1, ...):
+before, seed arithmetic made run seed 100's random episodes the evaluation's very seeds.
+Same seed, same numbers; and a run can be resumed at any iteration, because iteration i's stream
+does not depend on what earlier iterations drew.
 """
 from __future__ import annotations
 
@@ -15,8 +21,9 @@ import numpy as np
 import torch
 
 EVAL_SEED_BASE = 1_000_000_000  # vector tasks: evaluation episodes use seeds 10^9, 10^9 + 1, ...
-_STREAM = {"pre": (0,), "iteration": (1,), "evaluation": (2,), "video": (3,)}
-_EPISODE_BASE = {"pre": 0, "rollouts": 1_000_000}
+STREAMS = {"init": 1, "pre": 2, "iteration": 3, "evaluation": 4, "video": 5, "learner": 6}
+EPISODE_STREAMS = {"pre": 1, "rollouts": 2, "learner": 3}  # environment seeds of the learner's own episodes
+EPISODE_RANGE = 2**48
 
 
 class Seeds:
@@ -26,12 +33,19 @@ class Seeds:
         self.seed = int(seed)
 
     def rng(self, stream: str, *index: int) -> np.random.Generator:
-        return np.random.default_rng([self.seed, *_STREAM[stream], *index])
+        key = (STREAMS[stream], *(int(i) for i in index))
+        return np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=key))
 
     def episodes(self, stream: str, n: int, batch: int = 0) -> np.ndarray:
-        """Environment seeds for the `batch`-th group of `n` episodes of a stream (I_pre's random
-        runs, the policy's runs)."""
-        return self.seed * 10_000_000 + _EPISODE_BASE[stream] + batch * n + np.arange(n)
+        """Environment seeds for the `batch`-th group of `n` episodes of a stream (I_pre's random runs,
+        the policy's runs): from the stream's own range, disjoint from every other stream's."""
+        k = EPISODE_STREAMS[stream]
+        sequence = np.random.SeedSequence(self.seed, spawn_key=(100 + k, int(batch)))
+        draws = np.random.default_rng(sequence).integers(0, EPISODE_RANGE, n, dtype=np.int64)
+        return (k * EPISODE_RANGE + draws).astype(np.int64)
+
+    def torch_seed(self, stream: str, *index: int) -> int:
+        return int(self.rng(stream, *index).integers(2**63 - 1))
 
     @staticmethod
     def torch_generator(rng: np.random.Generator) -> torch.Generator:

@@ -293,3 +293,17 @@ def test_a_cancelled_iteration_is_undone_and_can_be_retried(tiny_config):
     run.progress = None
     run.step()
     assert strip_timing(run.records) == strip_timing(straight.records)
+
+
+def test_seed_streams_are_disjoint_whatever_the_seed():
+    from ifo.seeds import Seeds, evaluation_seeds
+
+    evaluation = set(evaluation_seeds(100, maze=False).tolist())
+    for seed in (0, 1, 100, 2**31, 2**32 - 1):
+        s = Seeds(seed)
+        pre = set(s.episodes("pre", 32, 0).tolist()) | set(s.episodes("pre", 32, 1).tolist())
+        rollouts = set(s.episodes("rollouts", 50, 0).tolist())
+        assert not pre & rollouts and not (pre | rollouts) & evaluation  # seed 100 once hit the evaluation seeds
+        assert min(pre | rollouts) > 10**6  # nor the demonstrations' seeds 0, 1, ...
+        assert (s.rng("iteration", 3).random(4) == Seeds(seed).rng("iteration", 3).random(4)).all()
+        assert not (s.rng("iteration", 3).random(4) == s.rng("iteration", 4).random(4)).any()

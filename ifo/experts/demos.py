@@ -4,7 +4,7 @@
     python -m ifo experts references --env cartpole   # random and expert AER -> assets/references.json
 
 Demonstrations use training seeds 0, 1, ...; every evaluation (the references included)
-uses separate seeds (`ifo.run.EVAL_SEED_BASE`) or, for the maze, held-out layouts.
+uses separate seeds (`ifo.seeds.EVAL_SEED_BASE`) or, for the maze, held-out layouts.
 Like the thesis's experts, episodes below a quality threshold are not kept.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from ifo.envs import ASSETS, EnvSpec, get_env, load_references
 from ifo.envs.rollout import EnvPool, run_episodes
 from ifo.experts import load_expert
 from ifo.io import atomic_write_bytes, atomic_write_json, npz_bytes
-from ifo.run import EVAL_SEED_BASE
+from ifo.seeds import EVAL_SEED_BASE
 
 # Keep demonstration episodes at least this good (the thesis's expert filtering, FIELD-NOTES).
 KEEP_THRESHOLD = {"cartpole": 475, "acrobot": -100, "mountaincar": -108, "lunarlander": 200}
