@@ -13,10 +13,11 @@ import streamlit as st  # noqa: E402
 from ifo.methods import METHODS, PLANNED  # noqa: E402
 from ifo.runtime import limit_threads  # noqa: E402
 from ifo.ui import storage  # noqa: E402
+from ifo.ui.lessons import lessons  # noqa: E402
 
 limit_threads()
-PLANNED_TITLES = {"gaifo": "GAIfO"}
-st.set_page_config(page_title="IfO Lab", page_icon=":material/school:", layout="wide")
+ICON = os.path.join(os.path.dirname(os.path.abspath(__file__)), "assets", "icon.png")  # local: nothing fetched
+st.set_page_config(page_title="IfO Lab", page_icon=ICON, layout="wide")
 
 # url_path differs from the file's name on purpose. Streamlit treats a server's first session as a
 # v1 multipage app (because pages/ exists): a deep link to /step_through would then run the page
@@ -29,7 +30,9 @@ step_page = st.Page("pages/step_through.py", title="Step through a run", icon=":
 def landing() -> None:
     st.title("IfO Lab")
     st.subheader("Imitation Learning from Observation, one iteration at a time")
-    methods = ", ".join(m.title for m in METHODS.values())
+    family = ", ".join(m.title for m in METHODS.values() if m.learner == "bco")
+    others = ", ".join(m.title for m in METHODS.values() if m.learner != "bco")
+    planned = f" Planned: {', '.join(p.upper() for p in PLANNED)}." if PLANNED else ""
     st.markdown(
         "In **imitation learning from observation** (IfO) an agent learns a task by watching an expert, "
         "but the demonstrations hold only what the expert *saw* (its states), never which actions it took.\n\n"
@@ -37,14 +40,17 @@ def landing() -> None:
         "leads from one state to the next. It uses the IDM to label the expert's state pairs with guessed actions, "
         "trains its policy to copy those labels, then runs the policy and feeds its own new experience back to "
         "the IDM: this is the **BCO loop**, and one press of *Step* is one turn of it.\n\n"
-        f"The methods here are {methods}: BC is the reference that is allowed to see the expert's true actions, "
-        "and each of the others adds a component (iterating, attention, goal-aware sampling, exploration) to the "
-        f"same loop; {', '.join(PLANNED_TITLES.get(p, p.upper()) for p in PLANNED)} are planned.\n\n"
-        "Open *Step through a run*, choose an environment and a method, and press *Step* to watch the reward "
-        "rise and the IDM's guesses approach the expert's hidden actions."
+        f"**{family}** are that one loop with components switched on (iterating, attention, goal-aware "
+        "sampling, exploration); BC is the reference that is allowed to see the expert's true actions. "
+        f"**{others}** are learners of their own built from the same parts: learning from the agent's own "
+        "rewards (CRIL), a discriminator that tells the expert from the agent (SAIL, GAIL, GAIfO), latent "
+        f"actions (ILPO).{planned}\n\n"
+        "Open *Step through a run*, choose an environment and a method, and press *Step*; or start from one of "
+        "the lessons below, each chosen because something visibly happens in it."
     )
     if st.button("Step through a run", key="open_step", type="primary", icon=":material/skip_next:"):
         st.switch_page(step_page)
+    lessons(step_page)
 
 
 # One notion of "who is this" for every page: the `?user=` id, else the one this session already has,
@@ -54,4 +60,6 @@ home = st.Page(landing, title="Welcome", icon=":material/school:", default=True)
 st.navigation([home, step_page,
                st.Page("pages/runs.py", title="Your runs", icon=":material/folder_open:", url_path="runs"),
                st.Page("pages/compare.py", title="Compare and ablate", icon=":material/compare_arrows:",
-                       url_path="compare")]).run()
+                       url_path="compare"),
+               st.Page("pages/watch.py", title="Watch a shared run", icon=":material/visibility:",
+                       url_path="watch")]).run()

@@ -167,7 +167,8 @@ def cmd_bench(a: argparse.Namespace) -> int:
             extra["deadlock_guard"] = True
         if a.expert_episodes:
             extra["expert_episodes"] = a.expert_episodes
-        text = reproduce(a.table, a.seeds, envs, a.iterations, **extra)
+        rows = [r.strip() for r in a.rows.split(",")] if a.rows else None
+        text = reproduce(a.table, a.seeds, envs, a.iterations, rows=rows, **extra)
     elif a.what == "vanishing":
         from ifo.bench import vanishing_table
 
@@ -254,6 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--table", choices=sorted(TABLES, key=lambda t: tuple(map(int, t.split(".")))),
                    help="which thesis table to reproduce")
     p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
+    p.add_argument("--rows", help="reproduce: only these rows of the table (comma-separated labels, e.g. CRIL,IUPE)")
     p.add_argument("--out", help="also write the table (and the command that made it) to this file")
     p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"],
                    help="reproduce: evaluate mazes on held-out layouts (default) or on the demonstrations' layouts "

@@ -12,9 +12,10 @@ if it fails or is cancelled, the learner is put back exactly as it was before th
 from __future__ import annotations
 
 import threading
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -25,6 +26,7 @@ from ifo.data.demos import Demonstrations, load_demonstrations
 from ifo.data.shipped import load_shipped_demonstrations
 from ifo.envs import get_env
 from ifo.envs.rollout import EnvPool, Rollouts, run_episodes
+from ifo.io import load_module_arrays, module_arrays
 from ifo.learners.base import Context, HiddenTruth, StepCancelled
 from ifo.methods import get_method
 from ifo.metrics import aer, performance, trajectory_fidelity
@@ -34,6 +36,7 @@ from ifo.seeds import Seeds, evaluation_seeds
 Progress = Callable[[str, int], None]  # (phase name, iteration) -> None
 DEMONSTRATION_LAYOUTS = 100  # the shipped maze demonstrations come from the training pool's first 100 layouts
 EVALUATE = "evaluate"
+HISTORY = "history"  # checkpoint arrays "history.<iteration>.<weight>": the policy after each iteration
 
 
 class RunFinished(RuntimeError):
@@ -73,6 +76,7 @@ class Run:
         self.records: list[dict] = []
         self.last_evaluation: Rollouts | None = None
         self.parent: str | None = None  # the checkpoint this run was loaded from or last saved as
+        self.policy_history: dict[int, dict[str, np.ndarray]] = {}  # iteration -> the policy's weights then
 
     # ------------------------------------------------------------------ the shared context
     def _pools(self) -> tuple[EnvPool, EnvPool]:
@@ -198,7 +202,36 @@ class Run:
         record = record_schema.check({"iteration": i + 1, "schema": record_schema.SCHEMA, **sections,
                                       "evaluation": evaluation, "seconds": seconds})
         self.records.append(record)
+        self.policy_history[i + 1] = module_arrays(HISTORY, self.learner.policy)  # to replay any iteration later
         return record
+
+    @contextmanager
+    def policy_at(self, iteration: int) -> Iterator[None]:
+        """The policy as it was after `iteration` while the block runs (a video of a past iteration);
+        then the current one again. Never while the run trains (the caller holds its lock)."""
+        if iteration not in self.policy_history:
+            raise KeyError(f"no policy kept for iteration {iteration}")
+        now = module_arrays(HISTORY, self.learner.policy)
+        load_module_arrays(HISTORY, self.learner.policy, self.policy_history[iteration])
+        try:
+            yield
+        finally:
+            load_module_arrays(HISTORY, self.learner.policy, now)
+
+    def branch(self, **changes) -> "Run":
+        """A new run that continues this one from its current iteration with some settings changed (a
+        switch such as sampling or exploration): the same I_pre, the same models and records so far.
+        Only the learner's `branchable` settings (and the run's iterations and eval_explore) may change."""
+        allowed = self.learner.Config.branchable() | {"iterations", "eval_explore"}
+        refused = set(changes) - allowed
+        if refused:
+            raise ValueError(f"{', '.join(sorted(refused))} change the networks or the data: start a new run instead")
+        branch = Run(self.config.with_values(**changes), demos=self.demos)
+        arrays, meta = self.learner.state()
+        branch.learner.load_state(arrays, meta)
+        branch.records = [dict(r) for r in self.records]
+        branch.policy_history = dict(self.policy_history)
+        return branch
 
     def evaluate(self, explore: bool = False, rng: np.random.Generator | None = None) -> dict:
         """AER, Performance and fidelity of the current policy on the evaluation episodes,
@@ -242,6 +275,8 @@ class Run:
         from ifo import checkpoint
 
         arrays, meta = self.learner.state()
+        for it, weights in self.policy_history.items():
+            arrays.update({f"{HISTORY}.{it}.{k[len(HISTORY) + 1:]}": v for k, v in weights.items()})
         meta = {**meta, "iteration": self.iteration, "schema": record_schema.SCHEMA}
         self.parent = checkpoint.save(directory, config=self.config.to_dict(), records=self.records, arrays=arrays,
                                       meta=meta, parent=self.parent, overwrite=overwrite,
@@ -260,5 +295,9 @@ class Run:
         run = cls(cfg, progress=progress)
         run.learner.load_state(ckpt.arrays, ckpt.meta)
         run.records = [record_schema.upgrade(r) for r in ckpt.records]
+        for key, value in ckpt.arrays.items():  # saved runs before the history kept only the latest policy
+            if key.startswith(HISTORY + "."):
+                it, name = key[len(HISTORY) + 1:].split(".", 1)
+                run.policy_history.setdefault(int(it), {})[f"{HISTORY}.{name}"] = value
         run.parent = ckpt.name
         return run

@@ -93,16 +93,19 @@ def _control_episode(spec, act, seed: int, max_frames: int) -> tuple[list[np.nda
         env.close()
 
 
-def policy_rollout_frames(run, seed: int = 0, max_frames: int | None = None,
-                          size: int = MAZE_VIDEO_SIZE) -> tuple[list[np.ndarray], float]:
-    """One evaluation-style episode of the run's current policy (MAP actions, or sampled when the
-    run measures AER with sampled actions): (RGB frames, return)."""
+def policy_rollout_frames(run, seed: int = 0, max_frames: int | None = None, size: int = MAZE_VIDEO_SIZE,
+                          iteration: int | None = None) -> tuple[list[np.ndarray], float]:
+    """One evaluation-style episode of the run's policy (MAP actions, or sampled when the run measures
+    AER with sampled actions), as it is now or as it was after `iteration`: (RGB frames, return)."""
+    from contextlib import nullcontext
+
     cfg, max_frames = run.config, max_frames or MAX_FRAMES
     rng = run.ctx.seeds.rng("video", seed)
     act = lambda obs: run.act(np.asarray(obs)[None], sample=cfg.eval_explore, rng=rng)[0]  # noqa: E731
-    if run.spec.is_maze:
-        return _maze_episode(run.spec, act, seed, cfg.obs_mode, cfg.image_size, max_frames, size)
-    return _control_episode(run.spec, act, _control_seed(seed), max_frames)
+    with run.policy_at(iteration) if iteration not in (None, run.iteration) else nullcontext():
+        if run.spec.is_maze:
+            return _maze_episode(run.spec, act, seed, cfg.obs_mode, cfg.image_size, max_frames, size)
+        return _control_episode(run.spec, act, _control_seed(seed), max_frames)
 
 
 def expert_rollout_frames(env: str, seed: int = 0, max_frames: int | None = None,

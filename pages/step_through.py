@@ -13,8 +13,7 @@ import streamlit as st
 
 from ifo.runtime import limit_threads
 from ifo.ui.diagram import loop_diagram
-from ifo.ui.panels import CHART_CONFIG, PanelContext, counter, draw_panels, metrics_row
-from ifo.ui.registry import active_panels
+from ifo.ui.panels import CHART_CONFIG, PanelContext, show_records
 from ifo.ui import storage
 from ifo.ui.session import RunSlot, hidden
 from ifo.ui.settings import choice_without_widgets, run_settings
@@ -33,6 +32,17 @@ choice = choice_without_widgets(KEY) if "settings" in hide else run_settings(KEY
 run = slot.ensure(choice)
 for note in slot.pop_notices():
     st.toast(note)
+pending = slot.state.pending_branch
+if pending is not None:  # a switch changed in the middle of a run: branch from here, or start again?
+    changed = ", ".join(f"**{k}** → {v}" for k, v in pending["changes"].items())
+    with st.container(border=True):
+        st.markdown(f"You changed {changed} after {run.iteration if run else 0} iterations. Continue from here "
+                    "as a branch (the same I_pre and models so far, the new setting from the next Step on), or "
+                    "start a new run from scratch? The run so far is kept either way.")
+        left, right, _ = st.columns([1, 1, 2])
+        left.button(f"Branch from iteration {run.iteration if run else 0}", key="branch", type="primary",
+                    on_click=slot.answer_branch, args=("branch",))
+        right.button("Start a new run", key="branch_new", on_click=slot.answer_branch, args=("new",))
 if run is None:
     st.error(slot.error)
     st.button("Try again", on_click=slot.request_reset, key="retry")
@@ -66,25 +76,11 @@ def live():
     if slot.state.save_error:
         st.warning(slot.state.save_error)
     records = slot.records
-    with count_area:
-        counter(run.iteration, run.config.iterations)
-    shown = None
-    if len(records) >= 2:
-        shown = scrub_area.slider("Show iteration", 1, len(records), len(records), key="step.view",
-                                  help="Scrub back through past iterations: every chart and the diagram "
-                                       "show the iteration you pick. The latest is the default.")
-    record = next((r for r in records if r["iteration"] == shown), records[-1] if records else None)
-    if "diagram" not in hide:
-        diagram_area.plotly_chart(loop_diagram(record, None, **sizes), key="step.diagram", config=CHART_CONFIG)
-        st.caption("The loop of every IfO method here: the box being trained lights up; the numbers are the "
-                   "sizes of the data flowing round at the iteration shown. *Thesis Algorithms 5.1 (ABCO) and 6.1 (IUPE).*")
+    show_records(records, run.config.iterations, hide, sizes, (count_area, scrub_area, diagram_area),
+                 lambda shown: PanelContext(slot, run, records, shown))
     if not records:
         st.info("Press **Step** to train the first iteration.")
         return
-    view = [r for r in records if shown is None or r["iteration"] <= shown]
-    if "metrics" not in hide:
-        metrics_row(view)
-    draw_panels(active_panels(records, hide), PanelContext(slot, run, records, shown))
     if run.method.sees_expert_actions:
         st.info(f"{run.method.title} learns from the expert's true actions: it is the reference that is allowed "
                 "to see them, so there is no IDM to show.")
@@ -95,7 +91,7 @@ live()
 if "controls" not in hide:
     with controls:
         st.markdown(f"**Current run:** {slot.describe()}")
-        done = run.finished
+        done = run.finished or slot.state.pending_branch is not None  # answer the branch question first
         step, n_col, play, to_end, reset = st.columns([1, 1, 1, 1.3, 1], vertical_alignment="bottom")
         step.button("Step", key="step", type="primary", on_click=slot.request_step, disabled=done,
                     help="Train one iteration.", width="stretch")
@@ -112,6 +108,14 @@ if "controls" not in hide:
                       help=f"Play every remaining iteration (up to {run.config.iterations}); Pause stops it.")
         reset.button("Reset", key="reset", on_click=slot.request_reset, width="stretch",
                      help="Start this run again from scratch with the current settings.")
+        with st.popover("Share read-only", icon=":material/share:"):
+            link = slot.share_link()
+            if link is None:
+                st.caption("Step once first: a run can be shared once it is saved.")
+            else:
+                st.code(link, language=None)
+                st.caption("Students who open this link watch this run (they cannot change it) and see your Steps "
+                           "as they happen; each can make their own copy to play with.")
         if done:
             st.success(f"The run has done all {run.config.iterations} iterations. Press Reset to start again, "
                        "or raise the number of iterations in the sidebar to continue.")

@@ -212,12 +212,14 @@ def test_scrubbing_shows_a_past_iteration_everywhere():
     assert len(records(at)) == 2  # scrubbing trains nothing
 
 
-def test_toggling_exploration_starts_a_new_run_with_it():
+def test_toggling_exploration_asks_then_starts_a_new_run_with_it():
     at = open_step_page()
     at.button(key="step").click().run()
     assert "panel.exploration" not in chart_keys(at)
     at.toggle(key="step.explore_labels").set_value(True).run()
     assert not at.exception
+    assert counter(at) == "Iteration 1 of 10" and at.button(key="step").disabled  # asked first
+    at.button(key="branch_new").click().run()
     assert counter(at) == "Iteration 0 of 10"  # a new run
     run = slot(at).run
     assert run.config.learner.explore_labels is True and run.config.learner.explore_rollouts is False
@@ -448,3 +450,68 @@ def test_the_user_stays_the_same_across_pages():
     at.query_params.pop(storage.USER_PARAM)
     at.switch_page(STEP_PAGE).run()
     assert user_of(at) == user and counter(at) == "Iteration 1 of 10"  # the same run, not a new user
+
+
+def test_toggling_a_switch_mid_run_can_branch_from_this_iteration():
+    at = open_step_page()
+    for _ in range(2):
+        at.button(key="step").click().run()
+    parent = slot(at).run
+    at.selectbox(key="step.sampling").select("iupe").run()
+    assert any("as a branch" in m.value for m in at.markdown)
+    at.button(key="branch").click().run()
+    assert not at.exception and not at.error
+    branch = slot(at).run
+    assert branch is not parent and branch.config.learner.sampling == "iupe"
+    assert counter(at) == "Iteration 2 of 10" and branch.records == parent.records  # from the same point
+    at.button(key="step").click().run()
+    assert counter(at) == "Iteration 3 of 10" and parent.iteration == 2
+    from ifo.ui import storage
+
+    user = at.query_params[storage.USER_PARAM]
+    labels = [r.label for r in storage.list_runs(user[0] if isinstance(user, list) else user)]
+    assert any("branched from" in label and "at iteration 2" in label for label in labels)
+    assert len(labels) == 2  # the run before the change is kept too
+
+
+def test_a_read_only_share_shows_the_run_and_a_copy_to_play_with():
+    from ifo.ui import storage
+
+    teacher = open_step_page()
+    for _ in range(2):
+        teacher.button(key="step").click().run()
+    link = next(c.value for c in teacher.code if "/watch?share=" in c.value)  # in the "Share read-only" popover
+    assert link and "/watch?share=" in link and "user=" not in link  # never the teacher's id
+    token = link.rsplit("=", 1)[1]
+    owner = teacher.query_params[storage.USER_PARAM]
+    owner = owner[0] if isinstance(owner, list) else owner
+
+    student = open_app(share=token)
+    student.switch_page("pages/watch.py").run()
+    assert not student.exception and not student.error
+    assert any("read-only" in m.value for m in student.markdown)
+    assert counter(student) == "Iteration 2 of 10" and "watch.diagram" in chart_keys(student)
+    assert not [b for b in student.button if b.key in ("step", "reset", "run")]  # nothing to change it with
+    student.button(key="watch.copy").click().run()
+    mine = student.query_params[storage.USER_PARAM]
+    mine = mine[0] if isinstance(mine, list) else mine
+    assert mine != owner and [r.iterations_done for r in storage.list_runs(mine)] == [2]
+    assert [r.iterations_done for r in storage.list_runs(owner)] == [2]  # the teacher's run is untouched
+
+
+def test_a_bad_share_link_says_so():
+    at = open_app(share="0" * 32)
+    at.switch_page("pages/watch.py").run()
+    assert not at.exception and "Could not open this shared run" in at.error[0].value
+
+
+def test_a_lesson_opens_the_step_page_with_its_settings():
+    at = open_app()
+    assert any("Vanishing actions" in m.value for m in at.markdown)
+    at.button(key="lesson.0.bco-alpha.cartpole").click().run()
+    assert not at.exception and not at.error
+    cfg = slot(at).run.config
+    assert (cfg.method, cfg.seed, cfg.learner.pre_size, cfg.iterations) == ("bco-alpha", 5, 300, 5)
+    at.switch_page(STEP_PAGE)  # (AppTest does not follow st.switch_page from one run to the next)
+    at.button(key="step").click().run()
+    assert counter(at) == "Iteration 1 of 5"

@@ -73,7 +73,7 @@ def test_bench_reproduce_passes_the_maze_protocol_to_every_run(monkeypatch, caps
 
     seen = {}
 
-    def fake_reproduce(table_id, seeds, envs, iterations, **extra):
+    def fake_reproduce(table_id, seeds, envs, iterations, rows=None, **extra):
         seen.update(table=table_id, seeds=seeds, envs=envs, iterations=iterations, extra=extra)
         return f"(table; {reproduce_mod._protocol(extra)})"
 

@@ -307,3 +307,38 @@ def test_seed_streams_are_disjoint_whatever_the_seed():
         assert min(pre | rollouts) > 10**6  # nor the demonstrations' seeds 0, 1, ...
         assert (s.rng("iteration", 3).random(4) == Seeds(seed).rng("iteration", 3).random(4)).all()
         assert not (s.rng("iteration", 3).random(4) == s.rng("iteration", 4).random(4)).any()
+
+
+# --------------------------------------------------------------------------- history and branches
+def test_the_policy_of_any_past_iteration_can_be_replayed_and_is_saved(tiny_config, tmp_path):
+    run = Run(tiny_config(iterations=3))
+    run.step()
+    after_one = learned_weights(run)
+    run.run()
+    latest = learned_weights(run)
+    with run.policy_at(1):
+        for k, v in after_one.items():
+            torch.testing.assert_close(run.policy.state_dict()[k], v)
+    for k, v in latest.items():  # and back to the current policy afterwards
+        torch.testing.assert_close(run.policy.state_dict()[k], v)
+    run.save(tmp_path / "run")
+    loaded = Run.load(tmp_path / "run")
+    assert sorted(loaded.policy_history) == [1, 2, 3]
+    with loaded.policy_at(1):
+        for k, v in after_one.items():
+            torch.testing.assert_close(loaded.policy.state_dict()[k], v)
+
+
+def test_a_branch_goes_on_from_the_same_point_with_one_switch_changed(tiny_config):
+    run = Run(tiny_config(method="bco-alpha", iterations=3))
+    run.run(2)
+    branch = run.branch(sampling="iupe", explore_labels=True)
+    assert branch.config.learner.sampling == "iupe" and branch.config.learner.explore_labels
+    assert branch.records == run.records and branch.iteration == 2  # the history so far
+    for k, v in learned_weights(run).items():  # the same models so far
+        torch.testing.assert_close(learned_weights(branch)[k], v)
+    np.testing.assert_array_equal(branch.learner.pre.train.states, run.learner.pre.train.states)  # the same I_pre
+    branch.step()
+    assert branch.records[-1]["labels"]["sampled"] and run.iteration == 2  # the original is untouched
+    with pytest.raises(ValueError, match="change the networks or the data"):
+        run.branch(attention="gated")

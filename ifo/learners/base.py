@@ -84,6 +84,12 @@ class LearnerConfig:
     def field_names(cls) -> set[str]:
         return {f.name for f in fields(cls)}
 
+    @classmethod
+    def branchable(cls) -> set[str]:
+        """Settings a run may change in the middle and go on from where it is (a branch): those that
+        change neither the networks nor the data collected so far."""
+        return set()
+
 
 # ----------------------------------------------------------------------------- the hidden truth
 class HiddenTruth:

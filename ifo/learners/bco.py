@@ -94,6 +94,12 @@ class BCOConfig(LearnerConfig):
     def fixed_iterations(self) -> int | None:
         return 1 if self.single_pass else None
 
+    @classmethod
+    def branchable(cls) -> set[str]:
+        # attention and hidden change the networks, the sizes change I_pre: those start a new run
+        return {"sampling", "explore_labels", "explore_rollouts", "episodes_per_iteration", "idm_epochs",
+                "policy_epochs"}
+
     def unused(self) -> set[str]:
         out = set()
         if self.labels == "expert":

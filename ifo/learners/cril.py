@@ -52,6 +52,12 @@ class CRILConfig(BCOConfig):
     """IUPE's switches and sizes, plus the reinforcement-learning part (Sec 8.2-8.3)."""
 
     gamma: float | None = option(0.99, "discount of the TD target (Eq 8.1)", low=0.0, high=1.0, advanced=True)
+    td_lr: float | None = option(1e-4, "Adam's learning rate of the TD updates: small, so they refine the policy "
+                                       "the imitation step trains rather than overwrite it", low=1e-8, high=10.0,
+                                 advanced=True)
+    scale_rewards: bool | None = option(True, "multiply rewards by (1 - gamma), so Q-values stay on the scale of "
+                                              "the logits the imitation step trains in the same network",
+                                        advanced=True)
     replay_multiple: int | None = option(10, "the replay memory holds this many times the expert's average "
                                              "episode length (Sec 8.2)", low=1, high=1000, advanced=True)
     td_updates: int | None = option(None, "TD mini-batch updates after each run of the policy", low=0,
@@ -95,7 +101,7 @@ class CRILLearner(BCOLearner):
         super().__init__(ctx, config)
         self.il_clip = config.il_clip
         policy = self.policy
-        self.optimizers["td"] = torch.optim.Adam(policy.parameters(), lr=config.lr, foreach=True)
+        self.optimizers["td"] = torch.optim.Adam(policy.parameters(), lr=config.td_lr, foreach=True)
         lengths = np.bincount(ctx.expert.episode_index)
         capacity = int(config.replay_multiple * max(1.0, float(lengths[lengths > 0].mean())))
         self.replay = ReplayMemory(capacity, ctx.obs_shape)
@@ -143,7 +149,8 @@ class CRILLearner(BCOLearner):
                 ro = run_episodes(ctx.pool, self._epsilon_greedy(epsilon, rng), batch)
                 parts.append(ro)
                 self.environment_steps += int(ro.lengths.sum())
-                self.replay.add(ro.states, ro.actions, ro.rewards, ro.next_states, _terminal_flags(ro))
+                scale = 1.0 - cfg.gamma if cfg.scale_rewards else 1.0
+                self.replay.add(ro.states, ro.actions, ro.rewards * scale, ro.next_states, _terminal_flags(ro))
                 for _ in range(cfg.td_updates * len(batch)):
                     loss, q_lo, q_hi = self._td_update(target, rng)
                     losses.append(loss)

@@ -3,13 +3,13 @@ and the drawing of the registry's panels (`ifo.ui.registry`), the rollout video 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import plotly.graph_objects as go
 import streamlit as st
 
 from ifo.ui.export import chart_downloads, export_note, slide_pack_download
-from ifo.ui.registry import env_view
+from ifo.figure_registry import EnvView
 
 # The chart's camera button downloads an SVG drawn by the browser: slides, no server work.
 CHART_CONFIG = {"toImageButtonOptions": {"format": "svg"}, "displaylogo": False}
@@ -67,13 +67,18 @@ def metrics_row(records: list[dict]) -> None:
 # --------------------------------------------------------------------------- the registry's panels
 @dataclass
 class PanelContext:
-    """What a custom panel (`Panel.render`) may use: the slot, its run and records, and the
-    iteration the slider shows (1-based)."""
+    """What a panel may use: the slot and its run (None when watching a shared run), the records, the
+    iteration the slider shows (1-based), and the run's configuration as a dict."""
 
     slot: Any
     run: Any
     records: list
     iteration: int | None
+    config: dict | None = None
+
+    @property
+    def config_dict(self) -> dict:
+        return self.config if self.config is not None else self.run.config.to_dict()
 
 
 def panel_caption(panel) -> None:
@@ -102,8 +107,8 @@ def draw_panels(panels, ctx: PanelContext, columns: int = 2) -> None:
             if len(row) == columns:
                 flush()
     flush()
-    if ctx.records and ctx.run is not None:
-        slide_pack_download(ctx.records, ctx.run.config.to_dict(), key="export.pack")
+    if ctx.records:
+        slide_pack_download(ctx.records, ctx.config_dict, key="export.pack")
 
 
 def _one(panel, ctx: PanelContext) -> None:
@@ -112,7 +117,7 @@ def _one(panel, ctx: PanelContext) -> None:
         panel.render(ctx)
         panel_caption(panel)
         return
-    fig = panel.draw(ctx.records, env_view(ctx.run), ctx.iteration)
+    fig = panel.draw(ctx.records, EnvView.of(ctx.config_dict), ctx.iteration)
     if fig is None:
         return
     st.plotly_chart(fig, key=f"panel.{panel.key}", config=CHART_CONFIG)
@@ -121,22 +126,59 @@ def _one(panel, ctx: PanelContext) -> None:
         chart_downloads(fig, panel.key, key=f"export.{panel.key}", note=False)
 
 
+def show_records(records: list[dict], total: int, hide: set[str], sizes: dict, areas: tuple,
+                 context: Callable[[int | None], PanelContext], key: str = "step") -> int | None:
+    """The iteration counter, the scrub slider, the loop diagram at the iteration shown, the metrics
+    row and the registry's panels: what the step page and a watched (shared) run both draw.
+    `areas` are (counter, slider, diagram) placeholders; `context(shown)` makes the panels' context.
+    Returns the iteration the slider shows (None: the latest)."""
+    from ifo.ui.diagram import loop_diagram
+    from ifo.ui.registry import active_panels
+
+    count_area, scrub_area, diagram_area = areas
+    with count_area:
+        counter(len(records), total)
+    shown = None
+    if len(records) >= 2:
+        shown = scrub_area.slider("Show iteration", 1, len(records), len(records), key=f"{key}.view",
+                                  help="Scrub back through past iterations: every chart and the diagram "
+                                       "show the iteration you pick. The latest is the default.")
+    record = next((r for r in records if r["iteration"] == shown), records[-1] if records else None)
+    if "diagram" not in hide:
+        diagram_area.plotly_chart(loop_diagram(record, None, **sizes), key=f"{key}.diagram", config=CHART_CONFIG)
+        st.caption("The loop of every IfO method here: the box being trained lights up; the numbers are the "
+                   "sizes of the data flowing round at the iteration shown. *Thesis Algorithms 5.1 (ABCO) and "
+                   "6.1 (IUPE).*")
+    if not records:
+        return None
+    if "metrics" not in hide:
+        metrics_row([r for r in records if shown is None or r["iteration"] <= shown])
+    draw_panels(active_panels(records, hide), context(shown))
+    return shown
+
+
 def rollout_panel(ctx: PanelContext) -> None:
     """The learner's rollout beside the expert's (same episode), rendered on demand and cached
     per (run, iteration) in the slot: rendering and encoding take a few seconds."""
     slot, run = ctx.slot, ctx.run
+    if run is None and ctx.records:
+        st.info("Make your own copy of this run (button above) to watch its policy play.")
+        return
     if run is None or not ctx.records:
         st.info("Train an iteration first: then you can watch the policy play.")
         return
     latest = run.iteration
-    if st.button(f"Show a rollout of the current policy (iteration {latest})", key="rollout",
-                 icon=":material/movie:", disabled=latest in slot.videos):
+    shown = ctx.iteration or latest  # the iteration the slider shows: its policy plays
+    kept = shown in run.policy_history or shown == latest
+    if st.button(f"Show a rollout of the policy after iteration {shown}", key="rollout", icon=":material/movie:",
+                 disabled=shown in slot.videos or not kept,
+                 help=None if kept else "This saved run kept only its latest policy (saved before the app kept "
+                                        "every iteration's): scrub to the latest iteration."):
         with st.spinner("Playing one episode and encoding the video..."):
             try:
-                slot.render_videos()
+                slot.render_videos(iteration=shown)
             except Exception as e:  # a missing expert, no ffmpeg, ...
                 st.error(f"Could not make the video: {e}")
-    shown = ctx.iteration or latest
     have = sorted(slot.videos)
     if not have:
         return

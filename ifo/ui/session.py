@@ -51,6 +51,17 @@ def _identity(config: RunConfig) -> dict:
     return {**config.to_dict(), "iterations": None}
 
 
+def branch_changes(old: RunConfig, new: RunConfig) -> dict | None:
+    """The settings that differ between two configurations when a run could go on with them as a
+    branch (only switches that change neither networks nor data); None when a new run is needed."""
+    a, b = old.flat(), new.flat()
+    changed = {k: b[k] for k in b if a.get(k) != b[k] and k != "iterations"}
+    if not changed or type(old.learner) is not type(new.learner) or old.method != new.method:
+        return None
+    allowed = type(new.learner).branchable() | {"eval_explore"}
+    return changed if set(changed) <= allowed else None
+
+
 def describe(config: RunConfig) -> str:
     """"IUPE on CartPole, seed 0"; a configuration that is no method's preset names its switches."""
     spec = get_env(config.env)
@@ -66,6 +77,10 @@ class SlotState:
     target: int = 0  # iteration the user asked to reach
     playing: bool = False  # Run N in progress
     reset_requested: bool = False
+    pending_branch: dict | None = None  # switches changed mid-run: {"config", "changes"} until the user chooses
+    branch_answer: str | None = None  # "branch" or "new": the user's choice for the pending change
+    branch_label: str | None = None  # the name a branched run is saved under
+    share_token: tuple | None = None  # (run id, token) of the read-only link
     training: bool = False  # an iteration is training right now (maybe in another thread)
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)  # one iteration at a time
     notices: list[str] = field(default_factory=list)
@@ -150,6 +165,15 @@ class RunSlot:
             s.error, s.playing = f"These settings cannot make a run: {e}", False
             return None
         identity = _identity(config)
+        if identity != s.identity and not s.reset_requested and s.run is not None and s.run.records:
+            changes = branch_changes(s.run.config, config)
+            answer, s.branch_answer = s.branch_answer, None
+            if changes and answer == "branch":
+                return self._branch(config, changes)
+            if changes and answer != "new":  # ask first: go on from here as a branch, or start again?
+                s.pending_branch = {"config": config, "changes": changes}
+                return s.run
+        s.pending_branch = None
         if identity == s.identity and not s.reset_requested:
             if s.run is not None:
                 s.error = None  # an earlier impossible setting was put right
@@ -159,7 +183,7 @@ class RunSlot:
             return s.run
         previous, previous_saved = s.run, s.user is not None and s.save_error is None
         s.reset_requested = s.playing = False
-        s.run, s.identity, s.error, s.step_error, s.target = None, identity, None, None, 0
+        s.run, s.identity, s.error, s.step_error, s.target, s.branch_label = None, identity, None, None, 0, None
         s.run_id, s.save_error, s.videos = storage.new_run_id(config), None, {}
         with st.spinner(f"Preparing a new run ({describe(config)}): loading the demonstrations "
                         "and collecting random transitions..."):
@@ -178,6 +202,42 @@ class RunSlot:
                              f"({describe(previous.config)}, {previous.iteration} iterations) {where}.")
         return s.run
 
+    def _branch(self, config: RunConfig, changes: dict) -> Run | None:
+        """Continue the current run from its iteration with `changes`: a new run (saved apart) that shares
+        its I_pre, models and records so far."""
+        s = self.state
+        parent = s.run
+        with st.spinner("Branching the run: the same I_pre and models, the new switches from here on..."):
+            try:
+                branch = parent.branch(**changes)
+            except Exception as e:  # noqa: BLE001 - shown, the current run stays
+                log.exception("could not branch")
+                s.error = f"Could not branch the run: {e}"
+                return parent
+        s.run, s.identity, s.pending_branch = branch, _identity(config), None
+        s.run_id, s.save_error, s.videos, s.target, s.playing = storage.new_run_id(config), None, {}, branch.iteration, False
+        s.branch_label = f"{describe(config)}, branched from {describe(parent.config)} at iteration {parent.iteration}"
+        s.notices.append(f"Branched at iteration {parent.iteration}: {', '.join(f'{k} = {v}' for k, v in changes.items())}."
+                         " The run before the change is kept in Your runs.")
+        self.save()
+        return branch
+
+    def share_link(self) -> str | None:
+        """A read-only link to the saved run (the same every time), or None before its first save."""
+        s = self.state
+        if s.run is None or s.run.iteration == 0 or s.user is None or s.save_error is not None:
+            return None
+        if s.share_token is None or s.share_token[0] != s.run_id:
+            s.share_token = (s.run_id, storage.share_run(s.user, s.run_id))
+        from urllib.parse import urlsplit
+
+        here = urlsplit(st.context.url or "http://localhost:8501/")
+        return f"{here.scheme}://{here.netloc}/watch?{storage.SHARE_PARAM}={s.share_token[1]}"
+
+    def answer_branch(self, answer: str) -> None:
+        """The user's choice for a pending switch change: "branch" (go on from here) or "new" (start again)."""
+        self.state.branch_answer = answer
+
     def adopt(self, run: Run, run_id: str, key: str) -> None:
         """Make a loaded run this slot's run, and point the settings widgets (`key`) at it, so
         the next `ensure` keeps it."""
@@ -187,6 +247,7 @@ class RunSlot:
         s.run, s.identity, s.run_id = run, _identity(choice.config()), run_id
         s.error = s.step_error = s.save_error = None
         s.target, s.playing, s.reset_requested, s.videos = run.iteration, False, False, {}
+        s.pending_branch, s.branch_label = None, None
 
     def open_from_url(self, key: str) -> None:
         """If the URL names a saved run (`?run=<id>`) of this page's user that this slot does
@@ -223,7 +284,7 @@ class RunSlot:
         if s.user is None or s.run is None or s.run_id is None:
             return
         try:
-            storage.save_run(s.run, s.user, s.run_id, label=describe(s.run.config))
+            storage.save_run(s.run, s.user, s.run_id, label=s.branch_label or describe(s.run.config))
             s.save_error = None
         except Exception as e:  # a full disk must not stop the lesson
             log.exception("autosave failed")
@@ -238,16 +299,17 @@ class RunSlot:
     def videos(self) -> dict:
         return self.state.videos
 
-    def render_videos(self, episode: int = 0) -> None:
-        """Record the current policy (and the expert, once per environment) on evaluation episode
-        `episode`, as MP4, cached for this iteration."""
+    def render_videos(self, episode: int = 0, iteration: int | None = None) -> None:
+        """Record the policy after `iteration` (default: the latest; and the expert, once per environment)
+        on evaluation episode `episode`, as MP4, cached per iteration."""
         from ifo.video import expert_rollout_frames, frames_to_mp4, policy_rollout_frames
 
         s, run = self.state, self.state.run
+        iteration = iteration or run.iteration
         fps = 6 if run.spec.is_maze else 30
         with s.lock:  # never while the run trains in another thread
-            frames, ret = policy_rollout_frames(run, episode)
-        s.videos[run.iteration] = (frames_to_mp4(frames, fps=fps), ret, len(frames) - 1)
+            frames, ret = policy_rollout_frames(run, episode, iteration=iteration)
+        s.videos[iteration] = (frames_to_mp4(frames, fps=fps), ret, len(frames) - 1)
         ekey = (run.spec.name, episode)
         if ekey not in s.expert_videos:
             try:

@@ -115,7 +115,7 @@ class Choice:
 
     def config(self) -> RunConfig:
         """The resolved configuration; raises ValueError with a plain message if a value is impossible."""
-        return RunConfig.from_dict({**self.values, **fast_overrides()}).resolved()
+        return RunConfig.from_dict({**fast_overrides(), **self.values}).resolved()  # (small-run defaults only)
 
     @classmethod
     def from_config(cls, config: RunConfig) -> "Choice":

@@ -200,6 +200,61 @@ def copy_shipped_run(user: str, name: str) -> str:
     return run_id
 
 
+# ---------------------------------------------------------------------- read-only shares
+# A teacher shares a run to watch: the link holds a token, never the teacher's user id (which is
+# what gives write access). The token is an HMAC of the run's address under a secret kept in the
+# runs root, so sharing the same run twice gives the same link, and nobody can make one up.
+SHARE_PARAM = "share"
+SHARES_FOLDER = ".shares"
+MAX_SHARE_BYTES = 4096
+
+
+def _share_secret() -> bytes:
+    path = runs_root() / SHARES_FOLDER / "secret"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            with open(path, "xb") as fh:  # the first writer wins; everyone reads that one
+                fh.write(os.urandom(32))
+        except FileExistsError:
+            pass
+    secret = path.read_bytes()
+    if len(secret) != 32:
+        raise OSError(f"{path} is damaged; delete it to make new share links (old ones stop working)")
+    return secret
+
+
+def share_run(user: str, run_id: str) -> str:
+    """A read-only token for one of the user's saved runs (the same token every time)."""
+    import hashlib
+    import hmac
+
+    get_run(user, run_id)  # it exists and is readable
+    token = hmac.new(_share_secret(), f"{user}/{run_id}".encode(), hashlib.sha256).hexdigest()[:32]
+    atomic_write_json(runs_root() / SHARES_FOLDER / f"{token}.json", {"user": user, "run_id": run_id})
+    return token
+
+
+def shared_run(token: str) -> SavedRun:
+    """The run a share token names; ValueError for a malformed token, FileNotFoundError when the
+    share or its run is gone."""
+    if not re.fullmatch(r"[0-9a-f]{32}", token or ""):
+        raise ValueError("this share link is not valid (it should end with 32 hexadecimal characters)")
+    path = runs_root() / SHARES_FOLDER / f"{token}.json"
+    if not path.is_file() or path.stat().st_size > MAX_SHARE_BYTES:
+        raise FileNotFoundError("this share link points to nothing: the run was never shared here, or it moved")
+    where = json.loads(path.read_text())
+    return get_run(str(where.get("user")), str(where.get("run_id")))
+
+
+def copy_shared_run(token: str, user: str) -> str:
+    """Copy a shared run into `user`'s own runs (to train it further); returns the new run id."""
+    source = shared_run(token)
+    run_id = f"{source.run_id[:80]}-copy-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:4]}"
+    checkpoint.copy_run(source.path, _safe_child(user, run_id))
+    return run_id
+
+
 # ---------------------------------------------------------------------- uploaded demonstrations
 @dataclass
 class SavedDemos:
