@@ -8,6 +8,7 @@ queues jobs and shows their status, refreshed by a fragment while any job is act
 import streamlit as st
 
 from ifo.components.sampling import SAMPLING_MODES
+from ifo.learners.bco import SAMPLING_LABELS
 from ifo.config import RunConfig
 from ifo.envs import ENVS
 from ifo.methods import METHODS
@@ -56,7 +57,7 @@ with by_switch:
     st.caption("The one BCO loop with components switched on by hand, as in the thesis's Tables 5.2 and 6.2.")
     a, s, e = st.columns(3)
     attention = a.checkbox("Attention", key="compare.attention", help="Gated self-attention in the IDM and policy.")
-    sampling = s.selectbox("Sampling", SAMPLING_MODES, key="compare.sampling",
+    sampling = s.selectbox("Sampling", SAMPLING_MODES, key="compare.sampling", format_func=SAMPLING_LABELS.get,
                            help="How I_s mixes random (I_pre) and the policy's own successful (I_pos) transitions.")
     exploration = e.checkbox("Exploration", key="compare.exploration",
                              help="Sample labels and rollout actions from the softmax instead of the MAP action.")
@@ -90,7 +91,8 @@ for r in saved:
         except ValueError:  # a run saved by an older version
             thesis = None
         extra.append({"group": r.label, "label": r.label, "records": storage.last_records(r),
-                      "total": r.iterations_total or r.iterations_done, "state": "done", "thesis": thesis})
+                      "total": r.iterations_total or r.iterations_done, "state": "done", "thesis": thesis,
+                      "env": r.config.get("env")})
 
 st.subheader("Queue")
 

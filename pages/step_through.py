@@ -15,7 +15,7 @@ from ifo.runtime import limit_threads
 from ifo.ui.diagram import loop_diagram
 from ifo.ui.panels import CHART_CONFIG, PanelContext, show_records
 from ifo.ui import storage
-from ifo.ui.session import RunSlot, hidden
+from ifo.ui.session import RunSlot, hidden, lesson_link, lesson_parts
 from ifo.ui.settings import choice_without_widgets, run_settings
 
 limit_threads()
@@ -119,3 +119,11 @@ if "controls" not in hide:
         if done:
             st.success(f"The run has done all {run.config.iterations} iterations. Press Reset to start again, "
                        "or raise the number of iterations in the sidebar to continue.")
+
+if "controls" not in hide:
+    with st.expander("Build a lesson link", icon=":material/link:"):
+        st.caption("Choose what the class sees: the link opens this page with the current settings and hides the "
+                   "parts you pick (it carries no user id: each student gets their own runs).")
+        lesson_hide = st.multiselect("Hide", lesson_parts(), format_func=lesson_parts().get, key="lesson.hide",
+                                     placeholder="Nothing hidden")
+        st.code(lesson_link(lesson_hide), language=None)

@@ -515,3 +515,13 @@ def test_a_lesson_opens_the_step_page_with_its_settings():
     at.switch_page(STEP_PAGE)  # (AppTest does not follow st.switch_page from one run to the next)
     at.button(key="step").click().run()
     assert counter(at) == "Iteration 1 of 5"
+
+
+def test_the_lesson_builder_makes_a_link_without_the_user():
+    at = open_step_page(**{"step.method": "IUPE"})
+    at.multiselect(key="lesson.hide").select("settings").select("idm").run()
+    link = next(c.value for c in at.code if "hide=" in c.value)
+    assert "hide=settings%2Cidm" in link and "step.method=IUPE" in link and "user=" not in link
+    hidden = open_step_page(hide="settings,idm", **{"step.method": "IUPE"})
+    hidden.button(key="step").click().run()
+    assert "panel.idm" not in chart_keys(hidden) and not hidden.sidebar.selectbox

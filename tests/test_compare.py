@@ -101,3 +101,24 @@ def test_another_user_does_not_see_those_jobs():
     at.run()
     at.switch_page("pages/compare.py").run()
     assert "Nothing queued yet" in " ".join(i.value for i in at.info)
+
+
+def test_copies_get_distinct_labels_and_one_environment_gets_its_reference_lines():
+    rec = [{"iteration": 1, "evaluation": {"aer": 100.0, "performance": 0.2}}]
+    labels = [label for label, _ in cp.distinct_labels([("BC", rec), ("BC", rec), ("IUPE", rec), ("BC", rec)])]
+    assert labels == ["BC", "BC (2)", "IUPE", "BC (3)"]
+    refs = cp.common_references([{"env": "cartpole"}, {"env": "cartpole"}])
+    assert refs["expert"] == pytest.approx(500.0) and refs["random"] < 30
+    assert cp.common_references([{"env": "cartpole"}, {"env": "acrobot"}]) is None  # no one line fits both
+
+
+def test_the_comparison_pack_holds_tables_without_a_browser():
+    import io
+    import zipfile
+
+    rec = [{"iteration": 1, "evaluation": {"aer": 100.0, "aer_std": 1.0, "performance": 0.2}, "seconds": {}}]
+    data = cp.compare_pack([("BC", rec), ("BC (2)", rec)], [{"configuration": "BC", "P (ours)": "0.2"}], None,
+                           formats=())
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        assert set(z.namelist()) == {"summary.csv", "runs/BC.csv", "runs/BC--2-.csv"}
+        assert "configuration" in z.read("summary.csv").decode()

@@ -105,6 +105,53 @@ def preset_configs(table_id: str, env: str | None = None, iterations: int | None
     return out
 
 
+def distinct_labels(runs: list[tuple[str, list]]) -> list[tuple[str, list]]:
+    """Runs with the same name (two copies of one example, say) get " (2)", " (3)"... so every curve
+    and legend entry can be told apart."""
+    seen: dict[str, int] = {}
+    out = []
+    for label, records in runs:
+        seen[label] = seen.get(label, 0) + 1
+        out.append((label if seen[label] == 1 else f"{label} ({seen[label]})", records))
+    return out
+
+
+def common_references(entries: list[dict]) -> dict | None:
+    """The expert's and a random policy's AER when every entry is on one environment, else None."""
+    envs = {e.get("env") for e in entries}
+    if len(envs) != 1 or None in envs:
+        return None
+    refs = get_env(envs.pop()).references()
+    return {"expert": refs.get("expert_aer"), "random": refs.get("random_aer")}
+
+
+def compare_pack(runs: list[tuple[str, list]], rows: list[dict], references: dict | None, formats=("svg", "png", "pdf"),
+                 ) -> bytes:
+    """The comparison as a slide pack: both curves as SVG/PNG/PDF (slide theme), summary.csv, metrics per run."""
+    import csv
+    import io
+    import zipfile
+
+    from ifo import export, figures
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
+        for metric in ("performance", "aer"):
+            fig = figures.compare_runs(runs, metric, "slide", references=references)
+            for fmt in formats:
+                z.writestr(f"figures/compare-{metric}.{fmt}", export.figure_bytes(fig, fmt))
+        table = io.StringIO()
+        if rows:
+            w = csv.DictWriter(table, fieldnames=list(rows[0]), lineterminator="\n")
+            w.writeheader()
+            w.writerows(rows)
+        z.writestr("summary.csv", table.getvalue())
+        for label, records in runs:
+            name = "".join(c if c.isalnum() or c in "-_." else "-" for c in label)[:80]
+            z.writestr(f"runs/{name}.csv", export.metrics_csv(records))
+    return buf.getvalue()
+
+
 def summary_rows(entries: list[dict]) -> list[dict]:
     """The thesis's layout: one row per configuration, P and AER ours (mean ± sd over its seeds, at
     each seed's latest iteration) beside the thesis's numbers.
@@ -153,6 +200,22 @@ def queue_jobs(planned: list[Planned], seeds: int, user: str, queue) -> int:
     return n
 
 
+def compare_pack_download(runs, rows, references, key: str) -> None:
+    import streamlit as st
+
+    from ifo import export
+
+    problem = export.export_problem()
+    formats = () if problem else ("svg", "png", "pdf")
+    if problem:
+        st.info(f"{problem}. The download below holds the tables only.", icon=":material/info:")
+    st.download_button("Comparison slide pack (ZIP)" if formats else "Comparison tables (ZIP)",
+                       data=lambda: compare_pack(runs, rows, references, formats), file_name="comparison.zip",
+                       mime="application/zip", key=key, on_click="ignore", icon=":material/folder_zip:",
+                       help="Both charts (16:9, large fonts) as SVG, PNG and PDF, the summary table and each run's "
+                            "metrics as CSV.")
+
+
 def job_line(job) -> str:
     state = STATE_TEXT.get(job.state, job.state)
     if job.state == "queued":
@@ -174,6 +237,7 @@ def queue_panel(user: str, queue, key: str, show_results: bool = True, extra_run
     import streamlit as st
 
     from ifo import figures
+    from ifo.ui.export import chart_downloads
     from ifo.ui.panels import CHART_CONFIG
 
     jobs = queue.jobs(user)
@@ -205,20 +269,26 @@ def queue_panel(user: str, queue, key: str, show_results: bool = True, extra_run
     if not show_results:
         return
     entries = [{"group": j.group, "label": j.label, "records": j.records, "total": j.total, "state": j.state,
-                "thesis": j.thesis} for j in jobs] + list(extra_runs or [])
-    with_records = [(e["label"], e["records"]) for e in entries if e["records"]]
+                "thesis": j.thesis, "env": j.config.env} for j in jobs] + list(extra_runs or [])
+    with_records = distinct_labels([(e["label"], e["records"]) for e in entries if e["records"]])
     st.subheader("Results")
     if not with_records:
         st.caption("Curves appear after each run's first iteration.")
     else:
+        refs = common_references([e for e in entries if e["records"]])
         left, right = st.columns(2)
-        with left:
-            st.plotly_chart(figures.compare_runs(with_records, "performance"), key=f"{key}.performance",
-                            config=CHART_CONFIG)
-            st.caption("Performance: 0 is a random policy, 1 the expert (Eq 4.2).")
-        with right:
-            st.plotly_chart(figures.compare_runs(with_records, "aer"), key=f"{key}.aer", config=CHART_CONFIG)
-            st.caption("Average episodic reward after each iteration (Eq 4.1).")
+        for col, metric, caption in ((left, "performance", "Performance: 0 is a random policy, 1 the expert (Eq 4.2)."),
+                                     (right, "aer", "Average episodic reward after each iteration (Eq 4.1); dashed: "
+                                                    "the expert's and a random policy's, when every run shares "
+                                                    "one environment.")):
+            with col:
+                fig = figures.compare_runs(with_records, metric, references=refs)
+                st.plotly_chart(fig, key=f"{key}.{metric}", config=CHART_CONFIG)
+                st.caption(caption)
+                chart_downloads(fig, f"compare-{metric}", key=f"{key}.{metric}.dl", note=False,
+                                draw=lambda theme="slide", m=metric: figures.compare_runs(with_records, m, theme,
+                                                                                         references=refs))
+        compare_pack_download(with_records, summary_rows(entries), refs, key=f"{key}.pack")
     st.markdown("**Summary, in the thesis's layout**: one row per configuration; *ours* is the mean ± standard "
                 "deviation over its seeds at each seed's latest iteration, beside the number the thesis reports "
                 "for the same configuration where it has one.")

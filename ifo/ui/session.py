@@ -433,3 +433,23 @@ def _acquire(lock, bar: _ProgressBar, area, message: str) -> None:
 def hidden() -> set[str]:
     """What a lesson hides: `?hide=settings,diagram,rollout` (controls, panels by registry key)."""
     return {h.strip().lower() for h in st.query_params.get("hide", "").split(",") if h.strip()}
+
+
+def lesson_parts() -> dict[str, str]:
+    """What a lesson link can hide (`?hide=`): the page's controls and each panel, by key -> title."""
+    from ifo.ui.registry import PANELS
+
+    return {"settings": "the settings sidebar", "controls": "the Step/Run/Reset buttons", "diagram": "the loop diagram",
+            "metrics": "the metrics row", **{p.key: f"panel: {p.title}" for p in PANELS}}
+
+
+def lesson_link(hide: list[str]) -> str:
+    """This page's link with its current settings and `hide`, without the user's id or run."""
+    from urllib.parse import urlencode, urlsplit
+
+    here = urlsplit(st.context.url or "http://localhost:8501/step")
+    params = {k: st.query_params.get(k) for k in st.query_params
+              if k not in (storage.USER_PARAM, "run", "hide", storage.SHARE_PARAM)}
+    if hide:
+        params["hide"] = ",".join(hide)
+    return f"{here.scheme}://{here.netloc}{here.path}" + (f"?{urlencode(params)}" if params else "")
