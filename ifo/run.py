@@ -27,10 +27,12 @@ from ifo.data.shipped import load_shipped_demonstrations
 from ifo.envs import get_env
 from ifo.envs.rollout import EnvPool, Rollouts, run_episodes
 from ifo.io import load_module_arrays, module_arrays
+from ifo.iteration_cache import Entry, IterationCache, lineage_next, lineage_start, wait_or_compute
 from ifo.learners.base import Context, HiddenTruth, StepCancelled
 from ifo.methods import get_method
 from ifo.metrics import aer, performance, trajectory_fidelity
 from ifo.probes import policy_map_record
+from ifo.runtime import limit_threads
 from ifo.seeds import Seeds, evaluation_seeds
 
 Progress = Callable[[str, int], None]  # (phase name, iteration) -> None
@@ -44,7 +46,9 @@ class RunFinished(RuntimeError):
 
 
 class Run:
-    def __init__(self, config: RunConfig, demos: Demonstrations | None = None, progress: Progress | None = None):
+    def __init__(self, config: RunConfig, demos: Demonstrations | None = None, progress: Progress | None = None,
+                 cache: IterationCache | None = None):
+        limit_threads()  # one torch thread unless IFO_TORCH_THREADS says otherwise (see ifo.runtime)
         self.config = cfg = config.resolved()
         self.spec = spec = get_env(cfg.env)
         self.method = get_method(cfg.method)
@@ -77,6 +81,11 @@ class Run:
         self.last_evaluation: Rollouts | None = None
         self.parent: str | None = None  # the checkpoint this run was loaded from or last saved as
         self.policy_history: dict[int, dict[str, np.ndarray]] = {}  # iteration -> the policy's weights then
+        # shared iterations (ifo.iteration_cache): the key of this run's state; None: nothing shared
+        # (a user's own demonstrations are not part of the key, so such runs never share)
+        self.cache = cache
+        self.lineage: str | None = None if cfg.demos else lineage_start(self._identity())
+        self.last_step_cached = False
 
     # ------------------------------------------------------------------ the shared context
     def _pools(self) -> tuple[EnvPool, EnvPool]:
@@ -174,11 +183,51 @@ class Run:
         if self.progress is not None:
             self.progress(name, self.iteration + 1)
 
+    def _identity(self) -> dict:
+        """What makes one iteration of this run what it is: every setting but the number of iterations."""
+        return {**self.config.to_dict(), "iterations": None}
+
     def step(self) -> dict:
         """Run one iteration and return its record. All or nothing: on any error (or a cancel) the
-        learner and the run are left exactly as they were, so a retry gives the same numbers."""
+        learner and the run are left exactly as they were, so a retry gives the same numbers. With a
+        cache, an iteration another session already computed (same lineage) is loaded, not trained."""
         if self.finished:
             raise RunFinished(f"the run has done all {self.config.iterations} iterations")
+        self.last_step_cached = False
+        if self.cache is None or self.lineage is None:
+            return self._train_step()
+        key = lineage_next(self.lineage, self._identity())
+        entry, computed = wait_or_compute(self.cache, key, lambda: self._entry(self._train_step()))
+        if not computed:  # the same iteration, computed by another session: take its result
+            self._take(entry)
+        self.lineage = key
+        return self.records[-1]
+
+    def step_if_cached(self) -> dict | None:
+        """The next iteration if another session already computed it (no waiting, no training), else None."""
+        if self.cache is None or self.lineage is None or self.finished:
+            return None
+        key = lineage_next(self.lineage, self._identity())
+        entry = self.cache.get(key)
+        if entry is None:
+            return None
+        self._take(entry)
+        self.lineage = key
+        return self.records[-1]
+
+    def _take(self, entry: Entry) -> None:
+        self.learner.load_state({k[len("learner."):]: v for k, v in entry.arrays.items() if k.startswith("learner.")},
+                                entry.meta)
+        self.records.append(entry.record)
+        self.policy_history[self.iteration] = {k: v for k, v in entry.arrays.items() if k.startswith(HISTORY)}
+        self.last_step_cached = True
+
+    def _entry(self, record: dict):
+        arrays, meta = self.learner.state()
+        return Entry({**{f"learner.{k}": v for k, v in arrays.items()}, **self.policy_history[self.iteration]},
+                     meta, record)
+
+    def _train_step(self) -> dict:
         i = self.iteration
         self._cancel.clear()
         rng = self.ctx.seeds.rng("iteration", i)
@@ -231,6 +280,7 @@ class Run:
         branch.learner.load_state(arrays, meta)
         branch.records = [dict(r) for r in self.records]
         branch.policy_history = dict(self.policy_history)
+        branch.lineage, branch.cache = self.lineage, self.cache  # the same past; its next steps differ
         return branch
 
     def evaluate(self, explore: bool = False, rng: np.random.Generator | None = None) -> dict:
@@ -277,14 +327,15 @@ class Run:
         arrays, meta = self.learner.state()
         for it, weights in self.policy_history.items():
             arrays.update({f"{HISTORY}.{it}.{k[len(HISTORY) + 1:]}": v for k, v in weights.items()})
-        meta = {**meta, "iteration": self.iteration, "schema": record_schema.SCHEMA}
+        meta = {**meta, "iteration": self.iteration, "schema": record_schema.SCHEMA, "lineage": self.lineage}
         self.parent = checkpoint.save(directory, config=self.config.to_dict(), records=self.records, arrays=arrays,
                                       meta=meta, parent=self.parent, overwrite=overwrite,
                                       demos_source=Path(self.config.demos) if self.config.demos else None)
         return Path(directory)
 
     @classmethod
-    def load(cls, directory: str | Path, progress: Progress | None = None) -> "Run":
+    def load(cls, directory: str | Path, progress: Progress | None = None,
+             cache: IterationCache | None = None) -> "Run":
         from ifo import checkpoint
 
         directory = Path(directory)
@@ -292,8 +343,9 @@ class Run:
         cfg = RunConfig.from_dict(ckpt.config)
         if cfg.demos:
             cfg = replace(cfg, demos=str(directory / checkpoint.DEMOS_FILE))
-        run = cls(cfg, progress=progress)
+        run = cls(cfg, progress=progress, cache=cache)
         run.learner.load_state(ckpt.arrays, ckpt.meta)
+        run.lineage = ckpt.meta.get("lineage") if not cfg.demos else None  # (runs saved before it: no sharing)
         run.records = [record_schema.upgrade(r) for r in ckpt.records]
         for key, value in ckpt.arrays.items():  # saved runs before the history kept only the latest policy
             if key.startswith(HISTORY + "."):

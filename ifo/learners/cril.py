@@ -205,6 +205,7 @@ class CRILLearner(BCOLearner):
         if self.previous_actions is not None:
             out["stop.previous_actions"] = self.previous_actions.copy()
             out["stop.previous_loss"] = np.array(self.previous_loss)
+        out["stop.met"] = np.array(self.stop)
         return out
 
     def load_data_state(self, arrays: dict[str, np.ndarray]) -> None:
@@ -213,6 +214,7 @@ class CRILLearner(BCOLearner):
         if "stop.previous_actions" in arrays:
             self.previous_actions = np.array(arrays["stop.previous_actions"])
             self.previous_loss = float(arrays["stop.previous_loss"])
+        self.stop = bool(arrays.get("stop.met", False))
 
 
 def _terminal_flags(ro: Rollouts) -> np.ndarray:

@@ -84,8 +84,9 @@ class JobStatus:
 
 def _default_make_run(config):
     from ifo.run import Run
+    from ifo.ui.storage import iteration_cache
 
-    return Run(config)
+    return Run(config, cache=iteration_cache())
 
 
 def _default_save(run, user: str, run_id: str, label: str) -> None:

@@ -188,7 +188,7 @@ class RunSlot:
         with st.spinner(f"Preparing a new run ({describe(config)}): loading the demonstrations "
                         "and collecting random transitions..."):
             try:
-                s.run = Run(config)
+                s.run = Run(config, cache=storage.iteration_cache())
             except Exception as e:  # a missing demonstrations file, an impossible combination, ...
                 if isinstance(e, ValueError):  # DemoError and bad settings: the message says it all
                     log.warning("could not build a run: %s", e)
@@ -261,7 +261,7 @@ class RunSlot:
             if not (path / "LATEST").exists():
                 raise FileNotFoundError("it is not among your saved runs")
             with st.spinner("Opening the saved run..."):
-                run = Run.load(path)
+                run = Run.load(path, cache=storage.iteration_cache())
         except Exception as e:  # a deleted run, a foreign link, an old format
             log.warning("could not open run %r: %s", run_id, e)
             s.notices.append(f"Could not open the saved run {run_id}: {e}")
@@ -394,6 +394,9 @@ class RunSlot:
                 s.playing = False
                 return True
             return False
+        if run.step_if_cached() is not None:  # the class's lesson: another session computed this iteration
+            self.save()
+            return self._play_ended(run)
         _acquire(_TRAININGS, bar, area, "Waiting for other sessions' training to finish...")
         s.training = True
         try:
@@ -414,6 +417,10 @@ class RunSlot:
             bar.show(area.empty)
         if bar.deferred is not None:  # the click that arrived during the iteration: handle it now
             raise bar.deferred
+        return self._play_ended(run)
+
+    def _play_ended(self, run: Run) -> bool:
+        s = self.state
         if s.playing and run.iteration >= min(s.target, run.config.iterations):
             s.playing = False
             return True

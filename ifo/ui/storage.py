@@ -200,6 +200,19 @@ def copy_shipped_run(user: str, name: str) -> str:
     return run_id
 
 
+# ---------------------------------------------------------------------- shared iterations
+CACHE_FOLDER = ".cache"
+
+
+def iteration_cache():
+    """The server's cache of computed iterations (ifo.iteration_cache), shared by every session: students
+    following one lesson compute each iteration once. IFO_LAB_CACHE_MB bounds it (default 1024; 0: off)."""
+    from ifo.iteration_cache import IterationCache
+
+    mb = int(os.environ.get("IFO_LAB_CACHE_MB", "1024"))
+    return IterationCache(runs_root() / CACHE_FOLDER, mb * 2**20) if mb > 0 else None
+
+
 # ---------------------------------------------------------------------- read-only shares
 # A teacher shares a run to watch: the link holds a token, never the teacher's user id (which is
 # what gives write access). The token is an HMAC of the run's address under a secret kept in the

@@ -1,0 +1,105 @@
+"""The shared-iteration cache: a class on one lesson computes each iteration once."""
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import torch
+
+from conftest import make_tiny_config
+from ifo.iteration_cache import IterationCache
+from ifo.run import Run
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def strip(records):
+    return [{k: v for k, v in r.items() if k != "seconds"} for r in records]
+
+
+def weights(run):
+    return {k: v.clone() for k, v in run.policy.state_dict().items()}
+
+
+def test_a_cached_iteration_is_the_iteration_computed_afresh(tmp_path):
+    cache = IterationCache(tmp_path / "cache")
+    cfg = make_tiny_config(method="iupe", iterations=3)
+    fresh = Run(cfg)
+    fresh.run()
+
+    teacher = Run(cfg, cache=cache)
+    teacher.run(2)
+    assert not teacher.last_step_cached  # computed and stored
+    student = Run(cfg, cache=cache)
+    student.run(2)
+    assert student.last_step_cached  # loaded: nothing trained
+    assert student.records == teacher.records and strip(student.records) == strip(fresh.records[:2])
+    for k, v in weights(teacher).items():
+        torch.testing.assert_close(weights(student)[k], v)
+    student.step()  # the third iteration, trained from the loaded state, is the fresh run's third
+    assert not student.last_step_cached
+    assert strip(student.records) == strip(fresh.records)
+    assert sorted(student.policy_history) == [1, 2, 3]
+
+
+def test_a_branch_or_other_settings_never_take_another_lineage(tmp_path):
+    cache = IterationCache(tmp_path / "cache")
+    a = Run(make_tiny_config(iterations=3), cache=cache)
+    a.run(2)
+    other_seed = Run(make_tiny_config(iterations=3, seed=1), cache=cache)
+    other_seed.step()
+    assert not other_seed.last_step_cached
+    branch = a.branch(sampling="iupe")
+    branch.step()
+    assert not branch.last_step_cached and branch.lineage != a.lineage
+    again = Run(make_tiny_config(iterations=3), cache=cache).branch(sampling="iupe")
+    assert again.lineage != branch.lineage  # (its past is shorter: nothing to share yet)
+
+
+def test_two_processes_computing_the_same_iteration_at_once_compute_it_once(tmp_path):
+    script = textwrap.dedent(f"""
+        import json, sys
+        sys.path[:0] = [{str(ROOT)!r}, {str(ROOT / 'tests')!r}]
+        from conftest import make_tiny_config
+        from ifo.iteration_cache import IterationCache
+        from ifo.run import Run
+        run = Run(make_tiny_config(method="iupe", iterations=1), cache=IterationCache({str(tmp_path / 'cache')!r}))
+        record = run.step()
+        print(json.dumps({{"cached": run.last_step_cached,
+                          "record": {{k: v for k, v in record.items() if k != "seconds"}}}}))
+    """)
+    procs = [subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], [o[1][-2000:] for o in outs]
+    results = [json.loads(o[0].strip().splitlines()[-1]) for o in outs]
+    assert sorted(r["cached"] for r in results) == [False, True]  # one computed, the other waited and loaded
+    assert results[0]["record"] == results[1]["record"]
+
+
+def test_the_cache_evicts_by_size_without_breaking_a_run_in_use(tmp_path):
+    cache = IterationCache(tmp_path / "cache", max_bytes=1)  # every entry is over budget
+    run = Run(make_tiny_config(iterations=3), cache=cache)
+    run.run(2)
+    assert cache.size() == 0  # evicted as soon as stored
+    run.step()  # the run in use goes on: its state is its own, in memory
+    assert run.iteration == 3
+    cache.max_bytes = 10**9
+    other = Run(make_tiny_config(iterations=3), cache=cache)
+    other.run()
+    assert cache.size() > 0
+    assert strip(other.records) == strip(run.records)
+
+
+def test_a_damaged_entry_is_recomputed(tmp_path):
+    cache = IterationCache(tmp_path / "cache")
+    Run(make_tiny_config(iterations=1), cache=cache).step()
+    for f in (tmp_path / "cache").glob("??/*/entry.npz"):
+        f.write_bytes(b"not an npz")
+    run = Run(make_tiny_config(iterations=1), cache=cache)
+    run.step()
+    assert not run.last_step_cached and run.iteration == 1
+    again = Run(make_tiny_config(iterations=1), cache=cache)
+    again.step()
+    assert again.last_step_cached  # the recomputed entry replaced the damaged one
