@@ -97,12 +97,26 @@ class MLP(nn.Module):
             last = h
         layers.append(nn.Linear(last, out_dim))
         self.body = nn.Sequential(*layers)
+        self.gate_effects: list | None = None  # gate_report() collects each gated block's effect here
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = self.standardize(x)
+        x = (x - self.standardize.mean) / self.standardize.std
         if self.feature_attention is not None:
             x = self.feature_attention(x)
-        return self.body(x)
+        # the layers by hand: for layers this small a module call costs more than the arithmetic
+        for layer in self.body:
+            if isinstance(layer, nn.Linear):
+                x = F.linear(x, layer.weight, layer.bias)
+            elif isinstance(layer, nn.ReLU):
+                x = F.relu(x)
+            elif isinstance(layer, GatedResidual):
+                added = layer.gamma * F.linear(x, layer.value.weight, layer.value.bias)
+                if self.gate_effects is not None:
+                    self.gate_effects.append(float(added.abs().mean() / x.abs().mean().clamp_min(1e-12)))
+                x = x + added
+            else:
+                x = layer(x)  # LayerNorm
+        return x
 
 
 # ----------------------------------------------------------------------------- images
@@ -238,25 +252,16 @@ def gate_report(model: nn.Module, *inputs: torch.Tensor, max_samples: int = 512)
     the size of what it adds, mean |gamma * (W_v h + b)| over mean |h| (0: the block is the
     identity). None for models without such blocks. Runs the model on at most `max_samples`."""
     blocks = [m for m in model.modules() if isinstance(m, GatedResidual)]
-    if not blocks:
+    mlp = getattr(model, "mlp", None)
+    if not blocks or mlp is None:
         return None
-    seen: dict[int, float] = {}
-
-    def hook(index):
-        def record(module, args, output):
-            h = args[0]
-            added = module.gamma * module.value(h)
-            seen[index] = float(added.abs().mean() / h.abs().mean().clamp_min(1e-12))
-        return record
-
-    handles = [b.register_forward_hook(hook(k)) for k, b in enumerate(blocks)]
     was_training = model.training
+    mlp.gate_effects = seen = []
     try:
         model.eval()
         model(*(torch.as_tensor(x[:max_samples], dtype=torch.float32) for x in inputs))
     finally:
-        for h in handles:
-            h.remove()
+        mlp.gate_effects = None
         model.train(was_training)
-    return [{"block": k, "gamma": round(float(b.gamma), 6), "effect": round(seen.get(k, 0.0), 6)}
+    return [{"block": k, "gamma": round(float(b.gamma), 6), "effect": round(seen[k] if k < len(seen) else 0.0, 6)}
             for k, b in enumerate(blocks)]

@@ -191,7 +191,7 @@ def grad_cam_probe_record(policy: nn.Module, size: int, image_size: int, count: 
 
 # --------------------------------------------------------------------------- Fig 5.3
 
-def _class_means(states: np.ndarray, actions: np.ndarray, n_actions: int, chunk: int = 4096):
+def _class_means(states: np.ndarray, actions: np.ndarray, n_actions: int, chunk: int = 1024):
     """Mean state (flattened, float64) and sample count per action, in chunks (bounded memory)."""
     states = np.asarray(states)
     actions = np.asarray(actions).astype(np.int64).ravel()
@@ -203,8 +203,8 @@ def _class_means(states: np.ndarray, actions: np.ndarray, n_actions: int, chunk:
     for start in range(0, len(states), chunk):
         block = states[start:start + chunk].reshape(-1, dim).astype(np.float64)
         acts = actions[start:start + chunk]
-        for a in range(n_actions):  # (np.add.at is much slower on wide rows)
-            sums[a] += block[acts == a].sum(axis=0)
+        one_hot = (acts[:, None] == np.arange(n_actions)).astype(np.float64)
+        sums += one_hot.T @ block  # per-action sums as one matrix product
     means = [sums[a] / counts[a] if counts[a] else None for a in range(n_actions)]
     return means, counts
 

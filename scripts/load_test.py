@@ -1,6 +1,14 @@
 """Many students at once: N browser sessions press Step K times on the same server.
 
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --sessions 10 --steps 3 [--url http://127.0.0.1:8501]
+    PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode lesson --sessions 30 --lead 2 --full
+    PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode free --sessions 10 --full
+
+Modes: "lesson" (every session on the same configuration and seed, the teacher's session starting
+`--lead` Steps ahead: students' iterations come from the shared iteration cache) and "free" (every
+session its own seed: nothing to share, the bounded queue of trainings decides). `--full` uses the
+real sizes (default: IFO_LAB_FAST's tiny runs). The report gives Step latency percentiles, the
+steps completed, and the server's peak memory (VmHWM) when it served the app itself.
 
 Without --url it serves the app itself (`streamlit run app.py` on a free loopback port, with
 IFO_LAB_FAST=1 and a throw-away IFO_LAB_RUNS). It opens N pages in one headless Debian
@@ -34,29 +42,53 @@ IDLE = "[data-testid='stApp'][data-test-script-state='notRunning']"
 LOOPBACK = {"127.0.0.1", "localhost", "::1"}
 
 
+LESSON = {"step.method": "IUPE"}  # what every session of a lesson opens (CartPole, seed 0)
+
+
+def step_url(url: str, mode: str, k: int) -> str:
+    settings = dict(LESSON)
+    if mode == "free":
+        settings["step.seed"] = str(100 + k)  # a configuration of its own
+    return f"{url}/step?{urllib.parse.urlencode(settings)}"
+
+
 async def session(browser, url: str, k: int, steps: int, step_timeout: float, results: dict,
-                  shots: str | None = None) -> None:
+                  shots: str | None = None, mode: str = "classic", start_after: asyncio.Event | None = None,
+                  ready: asyncio.Event | None = None, lead: int = 0) -> None:
     context = await browser.new_context(viewport={"width": 1280, "height": 900})
     page = await context.new_page()
     page.set_default_timeout(step_timeout * 1000)
     latencies, errors = [], []
     where = "opening the step page"
     try:
-        await page.goto(url)
-        await page.wait_for_selector(IDLE)
-        await page.get_by_role("button", name="Step through a run").click()
         counter = page.locator("[data-testid='stMain'] h4").filter(has_text=re.compile(r"^Iteration \d+ of \d+$"))
+        if start_after is not None:
+            await start_after.wait()  # students start once the teacher is `lead` Steps ahead
+        if mode == "classic":
+            await page.goto(url)
+            await page.wait_for_selector(IDLE)
+            await page.get_by_role("button", name="Step through a run").click()
+        else:
+            await page.goto(step_url(url, mode, k))
+            await page.wait_for_selector(IDLE)
+            dialog = page.get_by_role("dialog").filter(has_text="Page not found")  # streamlit#9992, first session
+            if await dialog.count():
+                await page.keyboard.press("Escape")
+                await dialog.wait_for(state="hidden")
         await counter.filter(has_text=re.compile(r"^Iteration 0 of")).wait_for()
         await page.wait_for_selector(IDLE)
         step = page.get_by_role("button", name="Step", exact=True)
-        for i in range(1, steps + 1):
+        for i in range(1, steps + lead + 1):
             where = f"step {i}"
             await step.wait_for()
             start = time.perf_counter()
             await step.click()
             await counter.filter(has_text=re.compile(rf"^Iteration {i} of")).wait_for(timeout=step_timeout * 1000)
-            latencies.append(time.perf_counter() - start)
+            if ready is None or i > lead:  # (the teacher's lead Steps are not the class's latency)
+                latencies.append(time.perf_counter() - start)
             await page.wait_for_selector(IDLE)
+            if ready is not None and i == lead:
+                ready.set()
     except Exception as e:  # noqa: BLE001 - a failed session is counted, not fatal
         errors.append(f"session {k}, {where}: {type(e).__name__}: {str(e).splitlines()[0][:200]}")
         if shots:
@@ -70,7 +102,7 @@ async def session(browser, url: str, k: int, steps: int, step_timeout: float, re
 
 
 async def run_sessions(url: str, sessions: int, steps: int, step_timeout: float, timeout: float,
-                       shots: str | None = None) -> dict:
+                       shots: str | None = None, mode: str = "classic", lead: int = 0) -> dict:
     from playwright.async_api import async_playwright
 
     results: dict[int, tuple[list, list]] = {}
@@ -79,8 +111,15 @@ async def run_sessions(url: str, sessions: int, steps: int, step_timeout: float,
             executable_path=CHROMIUM,
             args=["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"])
         try:
-            tasks = [asyncio.create_task(session(browser, url, k, steps, step_timeout, results, shots))
-                     for k in range(sessions)]
+            if mode == "lesson" and lead > 0:  # session 0 is the teacher, `lead` Steps ahead of the class
+                ahead = asyncio.Event()
+                tasks = [asyncio.create_task(session(browser, url, 0, steps, step_timeout, results, shots, mode,
+                                                     ready=ahead, lead=lead))]
+                tasks += [asyncio.create_task(session(browser, url, k, steps, step_timeout, results, shots, mode,
+                                                      start_after=ahead)) for k in range(1, sessions)]
+            else:
+                tasks = [asyncio.create_task(session(browser, url, k, steps, step_timeout, results, shots, mode))
+                         for k in range(sessions)]
             done, pending = await asyncio.wait(tasks, timeout=timeout)
             for t in pending:
                 t.cancel()
@@ -92,18 +131,35 @@ async def run_sessions(url: str, sessions: int, steps: int, step_timeout: float,
     return results
 
 
-def report(results: dict, sessions: int, steps: int, wall: float) -> str:
+def server_peak_mib(url: str) -> float | None:
+    """The app server's peak resident memory (VmHWM), found by its port in /proc (Linux)."""
+    port = urllib.parse.urlparse(url).port
+    for proc in Path("/proc").glob("[0-9]*"):
+        try:
+            cmd = (proc / "cmdline").read_bytes().split(b"\0")
+            if b"streamlit" in b" ".join(cmd) and str(port).encode() in cmd:
+                for line in (proc / "status").read_text().splitlines():
+                    if line.startswith("VmHWM:"):
+                        return int(line.split()[1]) / 1024
+        except OSError:
+            continue
+    return None
+
+
+def report(results: dict, sessions: int, steps: int, wall: float, mode: str = "classic",
+           peak_mib: float | None = None) -> str:
     latencies = np.array([x for lat, _ in results.values() for x in lat])
     errors = [e for _, errs in results.values() for e in errs]
-    lines = [f"### Load test: {sessions} sessions × {steps} Steps", "",
-             "| steps completed | p50 (s) | p90 (s) | p99 (s) | max (s) | mean (s) | wall clock (s) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [f"### Load test ({mode}): {sessions} sessions × {steps} Steps", "",
+             "| steps completed | p50 (s) | p95 (s) | p99 (s) | max (s) | mean (s) | wall clock (s) | server peak RSS (MiB) |",
+             "|---|---|---|---|---|---|---|---|"]
+    rss = "—" if peak_mib is None else f"{peak_mib:.0f}"
     if len(latencies):
-        p50, p90, p99 = np.percentile(latencies, [50, 90, 99])
-        lines.append(f"| {len(latencies)} / {sessions * steps} | {p50:.2f} | {p90:.2f} | {p99:.2f} "
-                     f"| {latencies.max():.2f} | {latencies.mean():.2f} | {wall:.0f} |")
+        p50, p95, p99 = np.percentile(latencies, [50, 95, 99])
+        lines.append(f"| {len(latencies)} / {sessions * steps} | {p50:.2f} | {p95:.2f} | {p99:.2f} "
+                     f"| {latencies.max():.2f} | {latencies.mean():.2f} | {wall:.0f} | {rss} |")
     else:
-        lines.append(f"| 0 / {sessions * steps} | — | — | — | — | — | {wall:.0f} |")
+        lines.append(f"| 0 / {sessions * steps} | — | — | — | — | — | {wall:.0f} | {rss} |")
     lines += ["", "Latency: from the click on Step until the page's counter shows the new iteration."]
     if errors:
         lines += ["", "Errors:"] + [f"- {e}" for e in errors]
@@ -118,6 +174,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=600, help="bound on the whole test, seconds")
     parser.add_argument("--step-timeout", type=float, default=180, help="bound on one Step, seconds")
     parser.add_argument("--screenshots", help="save a screenshot of each failed session into this folder")
+    parser.add_argument("--mode", choices=["classic", "lesson", "free"], default="classic",
+                        help="classic: the default settings from the landing page; lesson: every session the same "
+                             "configuration, the teacher --lead Steps ahead; free: every session its own seed")
+    parser.add_argument("--lead", type=int, default=0, help="lesson: the teacher's Steps ahead of the class")
+    parser.add_argument("--full", action="store_true", help="real sizes (default: IFO_LAB_FAST's tiny runs)")
     args = parser.parse_args(argv)
     if not 1 <= args.sessions <= 100 or not 1 <= args.steps <= 50:
         parser.error("--sessions must be 1..100 and --steps 1..50")
@@ -132,14 +193,19 @@ def main(argv: list[str] | None = None) -> int:
                 parser.error(f"no healthy Streamlit app at {args.url}")
             server = nullcontext(args.url.rstrip("/"))
         else:
-            server = serve_app(Path(tmp) / "server.log", {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(Path(tmp) / "runs")})
+            server = serve_app(Path(tmp) / "server.log", {"IFO_LAB_FAST": "" if args.full else "1",
+                                                           "IFO_LAB_RUNS": str(Path(tmp) / "runs")})
         with server as url:  # RuntimeError with the server's log if it does not start
             start = time.perf_counter()
             if args.screenshots:
                 Path(args.screenshots).mkdir(parents=True, exist_ok=True)
             results = asyncio.run(run_sessions(url, args.sessions, args.steps, args.step_timeout, args.timeout,
-                                               args.screenshots))
-            print(report(results, args.sessions, args.steps, time.perf_counter() - start))
+                                               args.screenshots, args.mode, args.lead))
+            peak = None if args.url else server_peak_mib(url)
+            print(report(results, args.sessions, args.steps, time.perf_counter() - start, args.mode, peak))
+            print(f"\nSettings: {'real sizes' if args.full else 'IFO_LAB_FAST tiny runs'}; "
+                  f"{'lesson ' + str(LESSON) + f', teacher {args.lead} Steps ahead' if args.mode == 'lesson' else ''}"
+                  f"{'each session its own seed' if args.mode == 'free' else ''}.")
     return 0
 
 
