@@ -42,6 +42,9 @@ class RunConfig:
                                     title="Iterations in the run")
     expert_episodes: int | None = option(None, "how many demonstration episodes T_e holds", low=1, high=100_000,
                                          advanced=True)
+    expert_level: int = option(1, "which expert demonstrated (thesis Table 7.1): 1 the best .. 5 the worst; "
+                                  "Performance is then measured against that expert's AER (control tasks only)",
+                               low=1, high=5, advanced=True, title="Expert level")
     eval_episodes: int = option(100, "evaluation episodes per iteration (held-out seeds or maze layouts)", low=1,
                                 high=10_000, advanced=True)
     eval_explore: bool = option(False, "measure AER with actions sampled from the policy's softmax instead of "
@@ -55,8 +58,9 @@ class RunConfig:
     image_size: int = option(32, "maze image side in pixels", low=16, high=256, advanced=True)
     rollout_max_steps: int | None = option(None, "maze: step limit of the learner's own runs (I_pre, I_pos)",
                                            low=1, high=100_000, advanced=True)
-    deadlock_guard: bool = option(False, "maze evaluation ends an episode on the 4th visit to a cell with "
-                                         "return -1 (the thesis's evaluation)", title="Deadlock guard")
+    deadlock_guard: bool = option(True, "maze evaluation ends an episode on the 4th visit to a cell with "
+                                        "return -1 (the thesis's evaluation); off, a lost agent wanders to the "
+                                        "1,000-step limit", title="Deadlock guard")
     maze_eval_layouts: str = option("held-out", "maze: evaluate on held-out layouts, or live in the "
                                                 "demonstrations' layouts (the thesis authors' protocol)",
                                     choices=("held-out", "demonstration"), title="Evaluate on", widget="radio",

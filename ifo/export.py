@@ -40,9 +40,6 @@ from typing import Sequence
 
 import plotly.graph_objects as go
 
-from ifo import figures
-from ifo.envs import get_env
-
 FORMATS = ("svg", "png", "pdf")
 MIME = {"svg": "image/svg+xml", "png": "image/png", "pdf": "application/pdf"}
 PNG_SCALE = 2  # a 1600x900 slide figure becomes a 3200x1800 PNG

@@ -169,7 +169,8 @@ FIGURES: list[FigureView] = [
                "the share of random actions in its own runs, taken from the imitation step's exploration.",
                _has("td"), lambda r, env, it, theme: figures.td_curves(r, iteration=it, theme=theme)),
     FigureView("replay", "Replay memory", "Thesis Sec 8.2",
-               "How full the memory of the policy's own transitions is (10× an expert episode).",
+               "How full the memory of the policy's own experience is (CRIL: 10× an expert episode of transitions; "
+               "SAIL: trajectories, 100× an expert episode of states).",
                _has("replay"), lambda r, env, it, theme: figures.replay_fill(r, iteration=it, theme=theme)),
     FigureView("samples", "Samples used", "Thesis Table 8.3",
                "Environment steps the learner took plus expert samples it used, so far: what it cost to get here.",

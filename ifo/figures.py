@@ -434,7 +434,7 @@ def idm_confusion(records: Sequence[dict], action_names: Sequence[str], iteratio
     Rows are the expert's hidden true actions, columns the IDM's MAP labels; each cell shows its
     count and its share of the row, and is coloured by that share (the diagonal is what it got right).
     """
-    title = "What the IDM calls each of the expert's actions"
+    title = "The IDM's labels against the truth"
     rec = _pick(records, iteration)
     why = _no_idm(rec, "confusion")
     if why:
@@ -449,7 +449,7 @@ def idm_confusion(records: Sequence[dict], action_names: Sequence[str], iteratio
     fig.update_yaxes(autorange="reversed")  # first action on top, as a table reads
     right = sum(counts[a][a] for a in range(min(len(counts), len(counts[0]) if counts else 0)))
     total = max(1, sum(map(sum, counts)))
-    return _layout(fig, f"{title} (iteration {rec['iteration']}: {right / total:.0%} right)", "IDM's label",
+    return _layout(fig, f"{title} (it. {rec['iteration']}: {right / total:.0%} right)", "IDM's label",
                    "expert's true action (hidden from the learner)", theme)
 
 
@@ -738,3 +738,61 @@ def policy_map(records: Sequence[dict], iteration: int | None = None, action_nam
                   pm.get("x_name", "x"), pm.get("y_name", "y"), theme)
     fig.update_xaxes(title_text=pm.get("x_name", "x"))
     return _headroom(fig, theme, lines=2 if kls else 1)
+
+
+# ----------------------------------------------------------------------------- resilience (Ch. 7, Fig 7.1)
+RESILIENCE_METRICS = {"aer": "AER", "performance": "P (against this expert)",
+                      "performance_expert1": "P against Expert¹", "fidelity": "trajectory fidelity (0 = expert's states)"}
+
+
+def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", metric: str = "aer",
+                      thesis: dict | None = None) -> go.Figure:
+    """Thesis Fig 7.1: each method's result against the expert's AER, one line per method over the expert
+    levels (mean over seeds, bars one sd), for one environment.
+
+    `results`: flat dicts with env, method, level, expert_aer and the metric (aer, performance,
+    performance_expert1 or fidelity); rows whose method is "Random" or "Expert..." are references: the
+    expert is drawn as the line y = x (AER), the random policy as a dashed level. `thesis`: method -> list
+    of (expert AER, agent AER) drawn dotted, for comparison (AER only)."""
+    if metric not in RESILIENCE_METRICS:
+        raise ValueError(f"metric must be one of {', '.join(RESILIENCE_METRICS)}, got {metric!r}")
+    import numpy as np
+
+    title = f"Agent {RESILIENCE_METRICS[metric]} against the expert's AER ({env})"
+    mine = [r for r in results if r.get("env") == env and r.get("expert_aer") is not None]
+    learners = [r for r in mine if r.get("method") != "Random" and not str(r.get("method", "")).startswith("Expert")]
+    if not learners:
+        return _empty(title, "No results for this environment yet", theme)
+    fig = go.Figure()
+    methods = list(dict.fromkeys(r["method"] for r in learners))
+    for k, method in enumerate(methods):
+        by_level: dict[int, list[dict]] = {}
+        for r in learners:
+            if r["method"] == method and r.get(metric) is not None and np.isfinite(r[metric]):
+                by_level.setdefault(int(r["level"]), []).append(r)
+        points = sorted((float(np.mean([r["expert_aer"] for r in rs])), float(np.mean([r[metric] for r in rs])),
+                         float(np.std([r[metric] for r in rs])), level, len(rs)) for level, rs in by_level.items())
+        if not points:
+            continue
+        color = COLORS[(k + 1) % len(COLORS)]
+        fig.add_trace(go.Scatter(
+            x=[p[0] for p in points], y=[p[1] for p in points], mode="lines+markers", name=method,
+            line=dict(color=color), error_y=dict(type="data", array=[p[2] for p in points], visible=True),
+            customdata=[[f"Expert level {p[3]}", p[4]] for p in points],
+            hovertemplate=f"{method}<br>%{{customdata[0]}} (AER %{{x:.1f}})<br>{RESILIENCE_METRICS[metric]} "
+                          "%{y:.3f} over %{customdata[1]} run(s)<extra></extra>"))
+        if thesis and metric == "aer" and thesis.get(method):
+            tx, ty = zip(*sorted(thesis[method]))
+            fig.add_trace(go.Scatter(x=list(tx), y=list(ty), mode="lines+markers", name=f"{method} (thesis)",
+                                     line=dict(color=color, dash="dot"), marker=dict(symbol="x"), opacity=0.6))
+    xs = sorted({float(r["expert_aer"]) for r in mine})
+    if metric == "aer":  # the expert itself: y = x (thesis Fig 7.1's blue line)
+        fig.add_trace(go.Scatter(x=xs, y=xs, mode="lines+markers", name="expert", line=dict(color=COLORS[0], width=3)))
+        randoms = [r["aer"] for r in results
+                   if r.get("env") == env and r.get("method") == "Random" and r.get("aer") is not None]
+        _references(fig, [("random", float(np.mean(randoms)) if randoms else None, RANDOM_COLOR)])
+    elif metric == "performance":
+        _references(fig, [("this expert", 1.0, EXPERT_COLOR), ("random", 0.0, RANDOM_COLOR)])
+    elif metric == "performance_expert1":
+        _references(fig, [("Expert¹", 1.0, EXPERT_COLOR), ("random", 0.0, RANDOM_COLOR)])
+    return _layout(fig, title, "expert's AER (its level's demonstrations)", RESILIENCE_METRICS[metric], theme)

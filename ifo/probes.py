@@ -13,7 +13,6 @@ Pure library code: numbers and lists for the run's records, no figures, no app.
 from __future__ import annotations
 
 import copy
-from typing import Sequence
 
 import numpy as np
 import torch

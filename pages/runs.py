@@ -87,7 +87,7 @@ if not runs:
 for saved in runs:
     rid = saved.run_id
     with st.container(border=True):
-        info, actions = st.columns([3, 2], vertical_alignment="center")
+        info, actions = st.columns([2, 3], vertical_alignment="center")
         info.markdown(f"**{saved.label}**")
         b_open, b_zip, b_rename, b_delete = actions.columns(4)
         busy = rid in training_now

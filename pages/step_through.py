@@ -75,6 +75,10 @@ def live():
         st.error(slot.state.step_error)
     if slot.state.save_error:
         st.warning(slot.state.save_error)
+        if slot.state.save_conflict:
+            left, right, _ = st.columns([1, 1, 2])
+            left.button("Reopen the latest save", key="save.reopen", on_click=slot.reopen_latest, args=(KEY,))
+            right.button("Keep mine as a copy", key="save.copy", on_click=slot.keep_as_copy)
     records = slot.records
     show_records(records, run.config.iterations, hide, sizes, (count_area, scrub_area, diagram_area),
                  lambda shown: PanelContext(slot, run, records, shown))

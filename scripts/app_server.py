@@ -10,7 +10,7 @@ import time
 import urllib.request
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,15 +30,17 @@ def healthy(url: str) -> bool:
 
 
 @contextmanager
-def serve_app(log_path: Path, env: dict[str, str], timeout: float = 90) -> Iterator[str]:
+def serve_app(log_path: Path, env: dict[str, str], timeout: float = 90,
+              extra_args: Sequence[str] = ()) -> Iterator[str]:
     """Yield the URL of a healthy app server started with `env` added to this process's
-    environment; RuntimeError (with the end of its log) if it does not come up in time."""
+    environment (and `extra_args` added to `streamlit run`, e.g. "--logger.level", "debug");
+    RuntimeError (with the end of its log) if it does not come up in time."""
     port = free_port()
     full_env = {**os.environ, "PYTHONPATH": str(ROOT), "SDL_VIDEODRIVER": "dummy", **env}
     with open(log_path, "w") as log:
         proc = subprocess.Popen(
             [sys.executable, "-m", "streamlit", "run", "app.py", "--server.headless", "true", "--server.address",
-             "127.0.0.1", "--server.port", str(port), "--browser.gatherUsageStats", "false"],
+             "127.0.0.1", "--server.port", str(port), "--browser.gatherUsageStats", "false", *extra_args],
             cwd=ROOT, env=full_env, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     try:

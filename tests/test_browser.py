@@ -1,128 +1,368 @@
-"""A teacher's journey in a real browser: Debian's chromium driven by Playwright.
+"""The journeys a class takes, in a real browser: Debian's chromium driven by Playwright.
 
-A session-scoped fixture serves the app with `streamlit run` (tiny runs: IFO_LAB_FAST=1) on a
-free port. The journey opens the app, goes to the step page, picks IUPE on CartPole, presses
-Step three times and checks that the charts are drawn and grow, shows a rollout video,
-saves a full-page screenshot to artifacts/browser/step_page.png for a person to look at,
-then turns exploration off and checks that a new run starts.
+Each journey is its own test, so one failure does not hide the rest. One app server serves
+the whole session (tiny runs: IFO_LAB_FAST=1; runs in a temporary folder), each test gets a
+fresh browser context (so a fresh user id), and every page a test opened is saved as a
+full-page screenshot to artifacts/browser/<test name>.png at its end, passed or failed, for a
+person to look at. The fixtures and helpers live in tests/browser_support.py.
+
+The tests check what a person sees (headings, counters, charts, buttons, messages, files
+they download), never the app's internals.
+
+    SDL_VIDEODRIVER=dummy .venv/bin/python -m pytest -q -m browser tests/test_browser.py
 """
+import io
+import os
+import re
 import xml.etree.ElementTree as ET
-from pathlib import Path
+import zipfile
 
+import numpy as np
 import pytest
 
-from scripts.app_server import serve_app
+pytest.register_assert_rewrite("browser_support")
+from browser_support import (CHART, LONG_MS, MAIN, ROOT, choose, counter, download, error_boxes, go_by_sidebar,
+                             open_app, query, sidebar, step, user_of, wait_idle)  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-CHROMIUM = Path("/usr/bin/chromium")
-ARTIFACTS = ROOT / "artifacts" / "browser"
-IDLE = "[data-testid='stApp'][data-test-script-state='notRunning']"
-CHART = "[data-testid='stPlotlyChart']"
+pytest_plugins = ["browser_support"]
+pytestmark = pytest.mark.browser
 
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium (/usr/bin/chromium) is not installed"),
-]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.fixture(scope="session")
-def app_url(tmp_path_factory):
-    log_path = tmp_path_factory.mktemp("streamlit") / "server.log"
-    try:
-        with serve_app(log_path, {"IFO_LAB_FAST": "1"}, timeout=60) as url:
-            yield url
-    except RuntimeError as exc:  # the server did not come up: say why, with its log
-        pytest.fail(str(exc))
+def expect(*args, **kwargs):
+    from playwright.sync_api import expect as _expect
+
+    return _expect(*args, **kwargs)
 
 
-@pytest.fixture
-def page():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        browser = p.chromium.launch(
-            executable_path=str(CHROMIUM),
-            args=["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"])
-        page = browser.new_page(viewport={"width": 1400, "height": 1000})
-        page.set_default_timeout(60_000)
-        yield page
-        browser.close()
+def is_svg(data: bytes) -> bool:
+    return ET.fromstring(data).tag.endswith("svg")
 
 
-def test_step_through_iupe_on_cartpole(app_url, page):
-    from playwright.sync_api import expect
+def bordered(page, *texts: str):
+    """The innermost bordered box (a run's entry in a list) that shows all of `texts`."""
+    box = page.locator(f"{MAIN} [data-testid='stVerticalBlock']")
+    for text in texts:
+        box = box.filter(has_text=text)
+    return box.last
 
-    page.goto(app_url)
-    page.wait_for_selector(IDLE)
+
+# ----------------------------------------------------------------------------- 1. a vector task
+def test_step_iupe_on_cartpole(app, page):
+    """IUPE on CartPole: three Steps draw every chart and grow the curves, the loop diagram
+    follows the iteration, and a rollout video plays."""
+    open_app(page, app)
     expect(page.get_by_role("heading", name="IfO Lab")).to_be_visible()
-
     page.get_by_role("button", name="Step through a run").click()
-    counter = page.locator("[data-testid='stMain'] h4")
-    expect(counter).to_have_text("Iteration 0 of 10")
-    page.wait_for_selector(IDLE)
-    assert "user=" in page.url  # runs autosave under this id
-    sidebar = page.locator("[data-testid='stSidebar']")
-    expect(sidebar.get_by_role("combobox", name="Environment")).to_have_value("CartPole")  # the defaults
-    expect(sidebar.get_by_role("combobox", name="Method")).to_have_value("BCO(α)")
+    expect(counter(page)).to_have_text("Iteration 0 of 10")
+    wait_idle(page)
+    expect(sidebar(page).get_by_role("combobox", name="Environment")).to_have_value("CartPole")  # the defaults
+    expect(sidebar(page).get_by_role("combobox", name="Method")).to_have_value("BCO(α)")
     expect(page.locator(CHART)).to_have_count(1)  # the loop diagram only
     expect(page.locator(CHART).first).to_contain_text("before the first iteration")
 
-    sidebar.get_by_role("combobox", name="Method").click()
-    page.get_by_role("option", name="IUPE", exact=True).click()
-    page.wait_for_selector(IDLE)
-    expect(sidebar.get_by_role("combobox", name="Method")).to_have_value("IUPE")
-    expect(sidebar.get_by_role("switch", name="Explore: sample the labels")).to_be_checked()  # IUPE's switches
-    assert "step.method=IUPE" in page.url  # the settings are in the link
+    choose(page, "Method", "IUPE")
+    expect(sidebar(page).get_by_role("switch", name="Explore: sample the labels")).to_be_checked()  # IUPE's switches
+    expect(page.get_by_text("Current run: IUPE on CartPole, seed 0")).to_be_visible()
 
     aer_chart = page.locator(CHART).filter(has_text="Average episodic reward")
+    charts = 0
     for k in (1, 2, 3):
-        page.get_by_role("button", name="Step", exact=True).click()
-        expect(counter).to_have_text(f"Iteration {k} of 10")
-        page.wait_for_selector(IDLE)
-        # diagram, AER, Performance, IDM, IDM through time, accuracy, sampling, exploration, win probability
-        expect(page.locator(CHART)).to_have_count(9)
+        step(page, k, 10)
+        if k == 1:  # the diagram, AER, Performance, the IDM's panels, sampling, exploration, win probability...
+            charts = page.locator(CHART).count()
+            assert charts >= 9, charts
+        expect(page.locator(CHART)).to_have_count(charts)  # the same panels every iteration
         for chart in page.locator(CHART).all():
             expect(chart).to_be_visible()
-        expect(aer_chart.locator(".scatterlayer .trace").first.locator("path.point")).to_have_count(k)
+        expect(aer_chart.locator(".scatterlayer .trace").first.locator("path.point")).to_have_count(k)  # it grows
         expect(page.locator(CHART).first).to_contain_text(f"iteration {k}")  # the diagram follows
     expect(page.get_by_text("expert's hidden true actions")).to_be_visible()  # the IDM panel's legend
     expect(page.get_by_text("Thesis Fig 6.2b").first).to_be_visible()  # each panel names its figure
-    assert "run=" in page.url  # autosaved: the link reopens this run
+    expect(error_boxes(page)).to_have_count(0)
 
-    page.get_by_role("button", name="Show a rollout of the current policy").click()
-    page.wait_for_selector(IDLE)
-    expect(page.locator("video")).not_to_have_count(0, timeout=60_000)
+    page.get_by_role("button", name=re.compile(r"Show a rollout of the .*policy")).click()
+    wait_idle(page, LONG_MS)
+    expect(page.get_by_text("Learner after iteration 3")).to_be_visible()
+    video = page.locator("video").first
+    expect(video).to_be_visible()
+    page.wait_for_function("v => v.readyState >= 2 && v.duration > 0", arg=video.element_handle(), timeout=LONG_MS)
+    start = video.evaluate("v => v.currentTime")
+    page.wait_for_function("([v, t]) => v.currentTime !== t", arg=[video.element_handle(), start], timeout=LONG_MS)
 
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    page.mouse.move(5, 5)  # no tooltip over the screenshot
-    page.evaluate("document.activeElement && document.activeElement.blur()")
-    page.set_viewport_size({"width": 1400, "height": 4200})  # the app scrolls inside its main pane
-    page.wait_for_selector(IDLE)
-    page.wait_for_timeout(1500)  # let plotly relayout to the new size, the videos start
-    page.screenshot(path=str(ARTIFACTS / "step_page.png"), full_page=True)
-    page.set_viewport_size({"width": 1400, "height": 1000})
 
-    # export a chart for slides: rendered on the server by kaleido with Debian's chromium
-    for label, check in (("SVG", lambda b: ET.fromstring(b).tag.endswith("svg")),
-                         ("PNG", lambda b: b.startswith(b"\x89PNG\r\n\x1a\n"))):
-        button = page.locator("[data-testid='stDownloadButton']").filter(has_text=label).first
-        with page.expect_download(timeout=120_000) as download:
-            button.locator("button").first.click()
-        assert check(Path(download.value.path()).read_bytes()), f"the {label} download is not a valid {label}"
+# ----------------------------------------------------------------------------- 2. a maze
+@pytest.mark.parametrize("method", ["BCO(α)", "ABCO", "IUPE"], ids=["bco-alpha", "abco", "iupe"])
+def test_step_a_maze(app, page, method):
+    """Every method that runs on the maze: two Steps on Maze 3×3 with images, no error, Grad-CAM shown."""
+    open_app(page, app, "step")
+    choose(page, "Environment", "Maze 3x3")
+    if method != "BCO(α)":
+        choose(page, "Method", method)
+    expect(page.get_by_text(f"Current run: {method} on Maze 3x3, seed 0")).to_be_visible()
+    expect(counter(page)).to_have_text("Iteration 0 of 15")
+    for k in (1, 2):
+        step(page, k, 15)
+        expect(error_boxes(page)).to_have_count(0)
+    grad_cam = page.locator(CHART).filter(has_text="Where the policy looks (Grad-CAM)")
+    expect(grad_cam).to_have_count(1)
+    expect(grad_cam).to_be_visible()
+    expect(grad_cam.locator(".heatmaplayer, image, .imagelayer image").first).to_be_attached()  # maps drawn
+    expect(page.get_by_text("Grad-CAM of the policy on fixed maze frames")).to_be_visible()
 
-    # reload: the autosaved run comes back from the link
+
+# ----------------------------------------------------------------------------- 3. an example run
+def test_open_an_example_run_and_continue_it(app, page, snap):
+    """"Open a copy" of a shipped example run: it opens finished on the step page; one more
+    iteration in the sidebar, one Step, and the copy in Your runs has it."""
+    open_app(page, app)
+    go_by_sidebar(page, "Your runs")
+    expect(page.get_by_text("No saved runs yet.")).to_be_visible()
+    example = bordered(page, "BCO(α) on CartPole", "Open a copy")
+    expect(example).to_contain_text("10 of 10 iterations")
+    example.get_by_role("button", name="Open a copy").click()
+
+    expect(page.get_by_role("heading", name="Step through a run")).to_be_visible()
+    expect(counter(page)).to_have_text("Iteration 10 of 10")
+    wait_idle(page)
+    run_id = query(page).get("run", "")
+    assert run_id.startswith("cartpole-bco-alpha-"), page.url  # the copy, not the example itself
+    expect(page.get_by_text("The run has done all 10 iterations")).to_be_visible()
+    expect(page.get_by_role("button", name="Step", exact=True)).to_be_disabled()
+    expect(page.locator(CHART)).not_to_have_count(0)
+
+    iterations = sidebar(page).get_by_role("spinbutton", name="Iterations in the run")
+    iterations.fill("11")
+    iterations.press("Enter")
+    expect(counter(page)).to_have_text("Iteration 10 of 11")
+    wait_idle(page)
+    step(page, 11, 11)
+    expect(error_boxes(page)).to_have_count(0)
+    expect(page.locator("[data-testid='stAlertContentWarning']")).to_have_count(0)  # the autosave worked
+    expect(page.get_by_text("The run has done all 11 iterations")).to_be_visible()
+    snap(page, "continued")
+
+    go_by_sidebar(page, "Your runs")
+    expect(bordered(page, "BCO(α) on CartPole", "Open", "ZIP")).to_contain_text("11 of 11 iterations")
+
+
+# ----------------------------------------------------------------------------- 4. the sidebar
+def test_the_sidebar_keeps_the_same_user_and_run(app, page):
+    """Welcome → Step through a run → Step → Your runs → Step through a run, all by the sidebar:
+    the run just trained is listed, comes back, and `?user=` never changes."""
+    open_app(page, app)
+    user = user_of(page)
+    assert user, f"no ?user= on the landing page: {page.url}"
+
+    go_by_sidebar(page, "Step through a run")
+    expect(counter(page)).to_have_text("Iteration 0 of 10")
+    assert user_of(page) == user, page.url
+    step(page, 1, 10)
+    expect(page).to_have_url(re.compile(r"[?&]run="))
+    run_id = query(page)["run"]
+    assert user_of(page) == user, page.url
+
+    go_by_sidebar(page, "Your runs")
+    assert user_of(page) == user, page.url
+    expect(page.get_by_text(f"(user {user})")).to_be_visible()
+    entry = bordered(page, "BCO(α) on CartPole, seed 0", "Open", "ZIP")
+    expect(entry).to_contain_text("1 of 10 iterations")
+    expect(page.get_by_role("button", name="Open", exact=True)).to_have_count(1)  # one run, this one
+
+    go_by_sidebar(page, "Step through a run")
+    expect(counter(page)).to_have_text("Iteration 1 of 10")  # the same run, not a new one
+    expect(page).to_have_url(re.compile(rf"[?&]run={re.escape(run_id)}"))
+    assert user_of(page) == user, page.url
+    expect(page.locator(CHART)).not_to_have_count(1)  # its charts, not an empty page
+
+
+# ----------------------------------------------------------------------------- 5. reload
+def test_reload_brings_the_run_back(app, page):
+    """Two Steps, then the browser's reload: the same run at the same iteration."""
+    open_app(page, app, "step")
+    step(page, 1, 10)
+    step(page, 2, 10)
+    expect(page).to_have_url(re.compile(r"[?&]run="))
+    before = query(page)
     page.reload()
-    page.wait_for_selector(IDLE)
-    expect(counter).to_have_text("Iteration 3 of 10")
-    expect(sidebar.get_by_role("combobox", name="Method")).to_have_value("IUPE")
+    wait_idle(page)
+    expect(counter(page)).to_have_text("Iteration 2 of 10")  # (its toast may be gone by now: not checked)
+    after = query(page)
+    assert (after.get("user"), after.get("run")) == (before["user"], before["run"]), page.url
+    aer_chart = page.locator(CHART).filter(has_text="Average episodic reward")
+    expect(aer_chart.locator(".scatterlayer .trace").first.locator("path.point")).to_have_count(2)
+    step(page, 3, 10)  # and it trains on from there
+    expect(error_boxes(page)).to_have_count(0)
 
-    # a switch is part of the run: turning exploration of labels off starts a new run
-    sidebar.get_by_text("Explore: sample the labels").click()
-    expect(counter).to_have_text("Iteration 0 of 10")
-    page.wait_for_selector(IDLE)
-    expect(sidebar.get_by_role("switch", name="Explore: sample the labels")).not_to_be_checked()
-    expect(sidebar.get_by_text("A custom combination of components.")).to_be_visible()
-    page.get_by_role("button", name="Step", exact=True).click()
-    expect(counter).to_have_text("Iteration 1 of 10")
-    page.wait_for_selector(IDLE)
-    expect(page.locator(CHART)).to_have_count(9)  # the policy still explores in its runs
+
+# ----------------------------------------------------------------------------- 6. two tabs
+def refused_save(app, page):
+    """The same `?user=&run=` link in two tabs; Step in the first, then in the second, whose save is
+    refused (it trained its own iteration 2 from iteration 1). Returns the second tab."""
+    open_app(page, app, "step")
+    step(page, 1, 10)
+    expect(page).to_have_url(re.compile(r"[?&]run="))
+    other = page.context.new_page()
+    other.goto(page.url)
+    wait_idle(other)
+    expect(counter(other)).to_have_text("Iteration 1 of 10")  # both show the run
+    expect(counter(page)).to_have_text("Iteration 1 of 10")
+    step(page, 2, 10)  # the first tab saves iteration 2
+    expect(page.locator("[data-testid='stAlertContentWarning']")).to_have_count(0)
+    step(other, 2, 10)
+    return other
+
+
+def test_two_tabs_on_one_run_never_lose_it(app, context, page):
+    """The same run in two tabs: stepping in one, then in the other, must not lose or corrupt it:
+    the second writer is told, the first goes on saving, and Your runs still lists the run."""
+    other = refused_save(app, page)
+    user, run_id = user_of(page), query(page)["run"]
+    warning = other.locator("[data-testid='stAlertContentWarning']")
+    expect(warning).to_have_count(1)
+    expect(warning).to_contain_text("another session saved this run")
+    expect(error_boxes(other)).to_have_count(0)
+
+    step(page, 3, 10)  # the first tab goes on saving
+    expect(page.locator("[data-testid='stAlertContentWarning']")).to_have_count(0)
+
+    listing = context.new_page()
+    open_app(listing, app, "runs", user=user)
+    entry = bordered(listing, "BCO(α) on CartPole, seed 0", "Open", "ZIP")
+    expect(entry).to_have_count(1)
+    expect(entry).to_contain_text("3 of 10 iterations")
+    expect(listing.get_by_text("damaged")).to_have_count(0)
+    expect(listing.get_by_role("button", name="Open", exact=True)).to_have_count(1)
+
+    # opening the run again (a fresh tab) finds the first tab's iteration 3, intact
+    again = context.new_page()
+    open_app(again, app, "step", user=user, run=run_id)
+    expect(counter(again)).to_have_text("Iteration 3 of 10")
+    expect(error_boxes(again)).to_have_count(0)
+
+
+@pytest.mark.xfail(strict=True, reason="app bug seen in the browser: the refused-save warning shows the server's "
+                   "folder and checkpoint names, and the tab drops ?run= from its URL, so reloading it (as the "
+                   "warning says) starts a new run at iteration 0 instead of reopening the saved one")
+def test_a_refused_save_says_what_to_do_and_a_reload_recovers(app, page):
+    """The second writer is told what happened in words (no server folders, no checkpoint names), and
+    reloading that tab, as the warning advises, reopens the saved run."""
+    other = refused_save(app, page)
+    run_id = query(page)["run"]
+    text = other.locator("[data-testid='stAlertContentWarning']").inner_text()
+    problems = []
+    if str(app.runs) in text or "ckpt-" in text:
+        problems.append(f"the warning shows server internals: {text!r}")
+    other.reload()
+    wait_idle(other)
+    shown = counter(other).inner_text()
+    if shown != "Iteration 2 of 10" or query(other).get("run") != run_id:
+        problems.append(f"after the reload the tab shows {shown!r} at {other.url}, not the saved run {run_id} "
+                        "at iteration 2")
+    assert not problems, problems
+
+
+# ----------------------------------------------------------------------------- 7. export
+def test_export_a_chart_and_the_slide_pack(app, page):
+    """A chart's SVG and PNG buttons download valid files; the slide pack is a ZIP with every
+    figure as SVG, metrics.csv and config.json."""
+    open_app(page, app, "step")
+    step(page, 1, 10)
+    step(page, 2, 10)
+    buttons = page.locator("[data-testid='stDownloadButton']")
+    svg = download(page, buttons.filter(has_text="SVG").first)
+    assert is_svg(svg), svg[:200]
+    png = download(page, buttons.filter(has_text="PNG").first)
+    assert png.startswith(PNG_MAGIC), png[:20]
+
+    pack = download(page, buttons.filter(has_text="Slide pack (ZIP)"), timeout=2 * LONG_MS)
+    with zipfile.ZipFile(io.BytesIO(pack)) as z:
+        names = z.namelist()
+        figures = [n for n in names if re.fullmatch(r"figures/[^/]+\.svg", n)]
+        assert figures and {"metrics.csv", "config.json"} <= set(names), names
+        assert all(is_svg(z.read(n)) for n in figures)
+        rows = z.read("metrics.csv").decode().strip().splitlines()
+        assert len(rows) == 3, rows  # a header and one row per iteration
+        assert '"method": "bco-alpha"' in z.read("config.json").decode().replace("\n", " ").replace("  ", " ")
+
+
+# ----------------------------------------------------------------------------- 8. compare
+def test_compare_two_methods(app, page):
+    """Queue BCO(α) and IUPE on the compare page, wait for both, read their curves and the table."""
+    open_app(page, app)
+    go_by_sidebar(page, "Compare and ablate")
+    expect(page.get_by_text("Nothing queued yet")).to_be_visible()
+    chosen = page.locator("[data-testid='stMultiSelect']").filter(has_text="Methods").first
+    expect(chosen).to_contain_text("BCO(α)")
+    expect(chosen).to_contain_text("IUPE")
+    iterations = page.get_by_role("spinbutton", name="Iterations per run")
+    iterations.fill("3")
+    iterations.press("Enter")
+    wait_idle(page)
+    page.get_by_role("button", name="Queue these methods").click()
+    expect(page.get_by_text("Queued 2 runs.")).to_be_visible()
+    expect(page.get_by_text(re.compile(r"0 waiting or training, 2 ended"))).to_be_visible(timeout=2 * LONG_MS)
+    wait_idle(page)
+    expect(page.get_by_text("finished after 3 of 3 iterations")).to_have_count(2)
+    expect(error_boxes(page)).to_have_count(0)
+
+    charts = page.locator(CHART)
+    expect(charts).to_have_count(2)  # Performance and AER on shared axes
+    for chart in charts.all():
+        expect(chart).to_be_visible()
+        expect(chart).to_contain_text("BCO(α)")  # the legend names both runs
+        expect(chart).to_contain_text("IUPE")
+        expect(chart.locator(".scatterlayer .trace")).to_have_count(2)
+    table = page.locator("[data-testid='stDataFrame']")
+    expect(table).to_be_visible()
+    # the grid is drawn on a canvas; focusing it (as a keyboard or screen-reader user does) gives its cells
+    table.locator("canvas[data-testid='data-grid-canvas']").focus()
+    rows = table.locator("tbody tr")
+    expect(rows).to_have_count(2)  # one row per configuration
+    expect(rows.nth(0)).to_contain_text("BCO(α) · CartPole · 3 it.")
+    expect(rows.nth(1)).to_contain_text("IUPE · CartPole · 3 it.")
+    for row in rows.all():
+        expect(row).to_contain_text("1/1 finished")
+        expect(row.locator("td").nth(3)).to_have_text(re.compile(r"^-?\d+\.\d+"))  # P (ours): a number
+
+
+# ----------------------------------------------------------------------------- 9. uploads
+def good_demos() -> bytes:
+    """The first two episodes of the shipped CartPole demonstrations, as a person would cut them."""
+    with np.load(ROOT / "assets" / "demos" / "cartpole.npz") as d:
+        end = np.flatnonzero(d["episode_starts"])[2]
+        arrays = {k: d[k][:end] for k in ("obs", "next_obs", "rewards", "episode_starts")}
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def test_upload_a_bad_file_then_a_good_one(app, page, snap):
+    """Random bytes named demos.npz: one clear error, nothing saved. Then a real file: listed."""
+    open_app(page, app)
+    go_by_sidebar(page, "Your runs")
+    form = page.locator("[data-testid='stForm']")
+    chooser = form.locator("[data-testid='stFileUploaderDropzoneInput']")
+
+    chooser.set_input_files({"name": "demos.npz", "mimeType": "application/octet-stream",
+                             "buffer": os.urandom(4096)})
+    expect(form.get_by_text("demos.npz")).to_be_visible()
+    form.get_by_role("button", name="Check and save").click()
+    wait_idle(page)
+    expect(error_boxes(page)).to_have_count(1)
+    expect(error_boxes(page)).to_contain_text("demos.npz")
+    expect(page.get_by_text("Nothing was saved")).to_be_visible()
+    expect(page.get_by_role("button", name="Train")).to_have_count(0)  # no demonstrations listed
+    snap(page, "bad-file")
+
+    chooser.set_input_files({"name": "two-episodes.npz", "mimeType": "application/octet-stream",
+                             "buffer": good_demos()})
+    expect(form.get_by_text("two-episodes.npz")).to_be_visible()
+    form.get_by_role("button", name="Check and save").click()
+    wait_idle(page)
+    expect(error_boxes(page)).to_have_count(0)
+    expect(page.get_by_text(re.compile(r"Saved cartpole-two-episodes: 2 episodes"))).to_be_visible()
+    entry = bordered(page, "cartpole-two-episodes", "Train")
+    expect(entry).to_contain_text("from two-episodes.npz · 2 episodes")
+    expect(page.get_by_role("button", name="Train")).to_have_count(1)

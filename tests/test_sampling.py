@@ -155,3 +155,9 @@ def test_map_choice_and_sampled_choice():
     certain = np.array([[0.0, 1.0]] * 100)
     chosen, _ = choose(certain, sample=True, rng=RNG())
     assert (chosen == 1).all()
+
+
+def test_bco_alpha_keeps_I_pre_when_the_runs_hold_nothing():
+    empty = POS.subset(np.zeros(0, dtype=np.int64))  # a maze policy that only walked into walls
+    t, mix = build_training_set("none", PRE, empty, np.zeros(0, bool), 0.0, 3, RNG())
+    assert len(t) == len(PRE) and sum(mix.from_pre) == len(PRE)  # never an empty I_s for the IDM

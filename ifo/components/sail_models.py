@@ -64,8 +64,9 @@ class Generator(nn.Module):
         squared error of the change in typical-change units, so every variable counts (same minimum)."""
         scaled = self.scaled_change(states, logits)
         target = (next_states - states - self.delta_mean) / self.delta_std
-        predicted = states + self.delta_mean + self.delta_std * scaled
-        return F.mse_loss(scaled, target), F.mse_loss(predicted.detach(), next_states)
+        with torch.no_grad():  # G(s, π(s)) - s' = delta_std * (scaled - target)
+            error = ((scaled - target) * self.delta_std).square().mean()
+        return F.mse_loss(scaled, target), error
 
 
 # ----------------------------------------------------------------------------- the discriminator

@@ -1,7 +1,8 @@
 """Building the IDM's next training set I_s from I_pre and the policy's runs I_pos.
 
     none        BCO(α) as the thesis describes it: I_s = I_pos, every run of this iteration (a
-                uniform subset of at most N = |I_pre| transitions when the runs hold more).
+                uniform subset of at most N = |I_pre| transitions when the runs hold more; I_pre
+                when the runs hold nothing to learn from, e.g. a maze policy walking into a wall).
     append      BCO(α) as Torabi et al.'s Algorithm 1: I_s = I_pre plus every post-demonstration
                 transition so far (I_s grows by |I_pos| each iteration).
     abco        ABCO, Eqs 5.3-5.5. Only runs that met the goal (v_e = 1) count. With p = P(g|E):
@@ -104,6 +105,8 @@ def build_training_set(mode: str, pre: Transitions, pos: Transitions, pos_succes
     n = len(pre)
     episodes = pos_episodes if pos_episodes is not None else np.zeros(len(pos), dtype=np.int64)
     if mode == "none":
+        if len(pos) == 0:  # the runs taught nothing (in a maze: every move hit a wall): keep I_pre
+            return pre, Mixture(pre.counts(n_actions).tolist(), [0] * n_actions, target=1.0)
         if len(pos) > n:
             pos = pos.subset(np.sort(rng.choice(len(pos), size=n, replace=False)))
         return pos, Mixture([0] * n_actions, pos.counts(n_actions).tolist(), target=1.0)

@@ -169,11 +169,11 @@ class BCOLearner(Learner):
             self.environment_steps += steps
             self.pre = stratified_split(everything, n_actions, 0.3, rng)
             self.train_set = self.pre.train
-            self.idm = InverseDynamics(obs_shape, n_actions, cfg.hidden, cfg.attention, **self.network_options())
+            self.idm = InverseDynamics(obs_shape, n_actions, cfg.hidden, cfg.attention, **self.network_options("idm"))
             self.idm.fit_input_scaling(*map(torch.as_tensor, (self.pre.train.states, self.pre.train.next_states)))
             self.modules["idm"] = self.idm
             self.optimizers["idm"] = make_optimizer(self.idm, cfg.lr)
-        policy = Policy(obs_shape, n_actions, cfg.hidden, cfg.attention, **self.network_options())
+        policy = Policy(obs_shape, n_actions, cfg.hidden, cfg.attention, **self.network_options("policy"))
         policy.fit_input_scaling(torch.as_tensor(ctx.expert.states))
         self.modules["policy"] = policy
         self.optimizers["policy"] = make_optimizer(policy, cfg.lr)
@@ -181,8 +181,8 @@ class BCOLearner(Learner):
         self.runs_policy = self.uses_idm and not cfg.single_pass
         self.last_rollouts = None
 
-    def network_options(self) -> dict:
-        """Extra options of the IDM and the policy (CRIL adds layer normalisation)."""
+    def network_options(self, role: str) -> dict:
+        """Extra options of the "idm" and the "policy" networks (CRIL and SAIL add layer normalisation)."""
         return {}
 
     def active_phases(self) -> list[str]:
@@ -215,8 +215,16 @@ class BCOLearner(Learner):
 
     def imitate(self, rng: np.random.Generator, gen: torch.Generator) -> dict:
         """M(a | s, s') trained on I_s (Eq 5.1), â = its labels for T_e, π trained on (s_e, â) (Eq 5.2)."""
+        record, targets, labels = self.train_idm_and_label(rng, gen)
+        self.clone(record, targets, labels, gen)
+        return record
+
+    def train_idm_and_label(self, rng: np.random.Generator, gen: torch.Generator) -> tuple[dict, np.ndarray, np.ndarray]:
+        """Eq 5.1 on I_s, then â for T_e (one row of labels per pass of the policy, sampled afresh when
+        exploring). Returns the record's idm and labels sections, the labels per pass, and the first pass's
+        labels. BC: the expert's true actions instead (the supervised reference)."""
         ctx, cfg, n_actions = self.ctx, self.config, self.ctx.n_actions
-        t_e, truth, policy = ctx.expert, ctx.truth, self.policy
+        t_e, truth = ctx.expert, ctx.truth
         record: dict = {}
         if self.uses_idm:
             with ctx.phase("idm"):  # Eq 5.1 on I_s
@@ -245,7 +253,11 @@ class BCOLearner(Learner):
             record["idm"].update(attention_report(self.idm, t_e.states, t_e.next_states))
         else:
             labels = targets = ctx.expert_actions  # BC: the supervised reference learns from the true actions
+        return record, targets, labels
 
+    def clone(self, record: dict, targets: np.ndarray, labels: np.ndarray, gen: torch.Generator) -> None:
+        """Eq 5.2: behavioural cloning of π on (s_e, â); the record's policy (and attention) sections."""
+        ctx, cfg, t_e, truth, policy = self.ctx, self.config, self.ctx.expert, self.ctx.truth, self.policy
         with ctx.phase("policy"):  # Eq 5.2 on (s_e, â)
             pol_fit = fit(policy, policy, self.optimizers["policy"], [t_e.states], targets, cfg.policy_epochs,
                           cfg.batch_size, gen, clip_value=self.il_clip)
@@ -259,7 +271,6 @@ class BCOLearner(Learner):
             with ctx.phase("attention"):  # Fig 6.1: Grad-CAM on fixed probe frames
                 record["attention"] = {"grad_cam": grad_cam_probe_record(
                     policy, ctx.spec.kwargs["size"], ctx.config.image_size)}
-        return record
 
     def run_policy(self, iteration: int, rng: np.random.Generator, record: dict) -> Rollouts:
         """|E| runs of π, MAP or sampled: I_pos, and v_e (the goal-aware function) per run."""

@@ -32,7 +32,6 @@ import torch.nn.functional as F
 
 from ifo.components.exploration import choose, exploration_rate
 from ifo.components.replay import ReplayMemory
-from ifo.data.transitions import Transitions  # noqa: F401  (I_pos is built by the shared resample)
 from ifo.envs.rollout import Rollouts, run_episodes
 from ifo.learners.base import Phase
 from ifo.learners.bco import BCOConfig, BCOLearner, rollouts_record
@@ -110,7 +109,7 @@ class CRILLearner(BCOLearner):
         self.previous_loss: float | None = None
         self.stop = False
 
-    def network_options(self) -> dict:
+    def network_options(self, role: str) -> dict:
         return {"layer_norm": bool(self.config.layer_norm)}
 
     def active_phases(self) -> list[str]:

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from ifo.config import RunConfig, configuration_label, switches
 from ifo.envs import get_env
 from ifo.methods import get_method
@@ -43,7 +41,7 @@ def thesis_numbers(config: RunConfig) -> tuple | None:
     """(P, AER, "Table x.y: row") the thesis reports for this configuration on its environment, or None."""
     env = get_env(config.env).name
     kind = _kind(config)
-    for table_id in ("6.1", "5.1", "5.2", "6.2"):
+    for table_id in ("6.1", "5.1", "5.2", "6.2", "9.1", "8.4"):
         table = TABLES[table_id]
         if env not in table.envs:
             continue

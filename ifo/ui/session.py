@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, replace
 import streamlit as st
 from streamlit.runtime.scriptrunner_utils.exceptions import ScriptControlException
 
+from ifo import checkpoint
 from ifo.config import RunConfig, configuration_label
 from ifo.envs import get_env
 from ifo.run import Run, RunFinished
@@ -81,6 +82,8 @@ class SlotState:
     branch_answer: str | None = None  # "branch" or "new": the user's choice for the pending change
     branch_label: str | None = None  # the name a branched run is saved under
     share_token: tuple | None = None  # (run id, token) of the read-only link
+    saved_once: bool = False  # the run is on disk: its ?run= link reopens it
+    save_conflict: bool = False  # the last save was refused because another session saved the run
     training: bool = False  # an iteration is training right now (maybe in another thread)
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)  # one iteration at a time
     notices: list[str] = field(default_factory=list)
@@ -185,6 +188,7 @@ class RunSlot:
         s.reset_requested = s.playing = False
         s.run, s.identity, s.error, s.step_error, s.target, s.branch_label = None, identity, None, None, 0, None
         s.run_id, s.save_error, s.videos = storage.new_run_id(config), None, {}
+        s.saved_once = s.save_conflict = False
         with st.spinner(f"Preparing a new run ({describe(config)}): loading the demonstrations "
                         "and collecting random transitions..."):
             try:
@@ -247,7 +251,7 @@ class RunSlot:
         s.run, s.identity, s.run_id = run, _identity(choice.config()), run_id
         s.error = s.step_error = s.save_error = None
         s.target, s.playing, s.reset_requested, s.videos = run.iteration, False, False, {}
-        s.pending_branch, s.branch_label = None, None
+        s.pending_branch, s.branch_label, s.saved_once, s.save_conflict = None, None, True, False
 
     def open_from_url(self, key: str) -> None:
         """If the URL names a saved run (`?run=<id>`) of this page's user that this slot does
@@ -271,9 +275,10 @@ class RunSlot:
         s.notices.append(f"Opened the saved run {describe(run.config)} at iteration {run.iteration}.")
 
     def sync_url(self) -> None:
-        """Keep `?run=` naming the current run once it is saved (reloading the page reopens it)."""
+        """Keep `?run=` naming the current run once it has been saved (reloading the page reopens it, also
+        after a later save was refused)."""
         s = self.state
-        saved = s.run is not None and s.run.iteration > 0 and s.user is not None and s.save_error is None
+        saved = s.run is not None and s.user is not None and s.saved_once
         if saved and st.query_params.get("run") != s.run_id:
             st.query_params["run"] = s.run_id
         elif not saved and "run" in st.query_params:
@@ -285,10 +290,27 @@ class RunSlot:
             return
         try:
             storage.save_run(s.run, s.user, s.run_id, label=s.branch_label or describe(s.run.config))
-            s.save_error = None
+            s.save_error, s.save_conflict, s.saved_once = None, False, True
+        except checkpoint.RunChanged:  # two tabs on one run: the other saved first; nothing is lost
+            s.save_conflict = True
+            s.save_error = ("Another tab or session saved this run meanwhile, so this iteration was not saved over "
+                            "it. Reopen the run from its latest save, or keep what you see here as a copy.")
         except Exception as e:  # a full disk must not stop the lesson
             log.exception("autosave failed")
-            s.save_error = f"Could not save the run: {e}"
+            s.save_error = f"Could not save the run: {getattr(e, 'reason', None) or e}"
+
+    def reopen_latest(self, key: str) -> None:
+        """After a refused save: load the run as another session last saved it."""
+        s = self.state
+        run = Run.load(storage.run_path(s.user, s.run_id), cache=storage.iteration_cache())
+        self.adopt(run, s.run_id, key)
+
+    def keep_as_copy(self) -> None:
+        """After a refused save: save what this session has as a run of its own."""
+        s = self.state
+        s.run.parent, s.run_id = None, storage.new_run_id(s.run.config)
+        s.branch_label = f"{describe(s.run.config)} (a copy made when another tab saved the same run)"
+        self.save()
 
     @property
     def run_id(self) -> str | None:

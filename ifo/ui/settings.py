@@ -139,7 +139,7 @@ def _widget_key(key: str, name: str, env: str, method: str) -> str:
 def set_widgets(key: str, choice: Choice) -> None:
     """Put a choice into the widgets' session state (before they are drawn: a loaded run)."""
     ss, env, method = st.session_state, choice.env, choice.method
-    defaults = resolved_defaults(env, method)
+    defaults = Choice({"env": env, "method": method}).config().flat()  # what an empty box gives (small runs too)
     advanced = {s.name for s in _all_specs(method) if s.advanced}
     for name, value in choice.values.items():
         if name in NOT_WIDGETS + METHOD_FIELDS or name == "learner":
@@ -263,7 +263,7 @@ def _maze_widgets(key: str, run_specs: dict, b: dict) -> dict:
         st.caption("A test of generalisation: from 100 demonstrations a policy mostly learns its mazes, so "
                    "even BC (which sees the true actions) scores low here (5×5: P ≈ 0.26). The thesis's "
                    "numbers come from the demonstrations' layouts.")
-    guard = _widget(run_specs["deadlock_guard"], _k(key, "deadlock_guard"), False, b)
+    guard = _widget(run_specs["deadlock_guard"], _k(key, "deadlock_guard"), run_specs["deadlock_guard"].default, b)
     return {"maze_eval_layouts": layouts, "deadlock_guard": bool(guard)}
 
 
