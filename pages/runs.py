@@ -191,7 +191,7 @@ for d in demos:
                 try:
                     config = RunConfig.from_dict(dict(env=d.env, method=method, demos=str(d.path),
                                                       obs_mode=storage.demos_obs_mode(d.path),
-                                                      expert_episodes=s.get("episodes"), **fast_overrides())).resolved()
+                                                      expert_episodes=s.get("episodes"), **fast_overrides(method))).resolved()
                     label = f"{method_label(method)} on {env_label(d.env)} · {d.name}"
                     queue.submit(user, config, label=label, group=label)
                 except (QueueFull, ValueError) as e:

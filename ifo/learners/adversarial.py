@@ -15,8 +15,11 @@
 
 The reward is replaced by a stable-baselines3 VecEnv wrapper (`learned_reward_env`) that sees every
 step of every environment, the true next state of a finished episode included (SB3 keeps it in
-info["terminal_observation"]). The environments are reseeded from the run's streams at the
-start of every round, so a round is the same whatever happened to the environments before it.
+info["terminal_observation"]). The environments are reseeded at the start of every round from the
+run's "learner" episode stream, PPO's action sampling from the round's torch seed and its mini-batch
+order from the round's numpy seed, so a round is the same whatever happened before it (undo, reload).
+Everything that changes is state: PPO's policy and its Adam, D and its Adam, PPO's step counters and
+the agent samples waiting for the next round's D.
 """
 from __future__ import annotations
 
@@ -37,10 +40,12 @@ from ifo.options import option
 # exist (CartPole: 8 envs x 32 steps, 20 epochs, GAE 0.8, gamma 0.98; LunarLander: 16 x 1024, 4 epochs
 # of batch 64, GAE 0.98, gamma 0.999, entropy 0.01), with constant learning rates (a learner's round
 # must not depend on how many rounds the run has). `round_steps` keeps a CartPole Step to about a
-# second; 50 rounds make 100k steps there, 1M on LunarLander.
+# second; 50 rounds make 100k steps there, 0.8M on LunarLander. On CartPole a discriminator trained 8
+# steps a round grew confident enough to starve the reward and the policy collapsed after reaching 500
+# (1 of 2 seeds); 2 steps a round kept 3 seeds of 3 at 500 (docs/CHOICES.md).
 ENV_DEFAULTS: dict[str, dict] = {
     "cartpole": dict(n_envs=8, ppo_steps=32, ppo_batch_size=256, policy_epochs=20, gamma=0.98, gae_lambda=0.8,
-                     ent_coef=0.0, lr=1e-3, round_steps=2048, reward="positive"),
+                     ent_coef=0.0, lr=1e-3, round_steps=2048, reward="positive", disc_updates=2),
     "acrobot": dict(n_envs=16, ppo_steps=256, ppo_batch_size=256, policy_epochs=4, gamma=0.99, gae_lambda=0.94,
                     ent_coef=0.0, lr=1e-3, round_steps=8192, reward="logit"),
     "mountaincar": dict(n_envs=16, ppo_steps=256, ppo_batch_size=256, policy_epochs=4, gamma=0.99, gae_lambda=0.98,
@@ -49,7 +54,7 @@ ENV_DEFAULTS: dict[str, dict] = {
                         ent_coef=0.01, lr=3e-4, round_steps=16384, reward="logit"),
 }
 COMMON_DEFAULTS = dict(n_envs=8, ppo_steps=256, ppo_batch_size=256, policy_epochs=10, gamma=0.99, gae_lambda=0.95,
-                       ent_coef=0.0, lr=3e-4, round_steps=4096, reward="logit")
+                       ent_coef=0.0, lr=3e-4, round_steps=4096, reward="logit", disc_updates=8)
 
 
 @dataclass(frozen=True)
@@ -65,7 +70,7 @@ class AdversarialConfig(LearnerConfig):
     round_steps: int | None = option(None, "environment steps PPO collects and learns from in one round (one "
                                            "Step); rounded up to whole PPO rollouts", low=1, high=10_000_000,
                                      advanced=True)
-    disc_updates: int | None = option(8, "discriminator updates per round", low=0, high=100_000, advanced=True)
+    disc_updates: int | None = option(None, "discriminator updates per round", low=0, high=100_000, advanced=True)
     disc_batch_size: int | None = option(256, "expert samples (and as many agent samples) per discriminator update",
                                          low=2, high=65_536, advanced=True)
     disc_lr: float | None = option(3e-4, "Adam's learning rate for the discriminator", low=1e-7, high=10.0,
@@ -171,7 +176,7 @@ class AdversarialLearner(Learner):
                          batch_size=cfg.ppo_batch_size, n_epochs=cfg.policy_epochs, gamma=cfg.gamma,
                          gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
                          policy_kwargs=dict(net_arch=list(cfg.hidden)), device="cpu", verbose=0,
-                         seed=int(ctx.seeds.rng("pre").integers(2**31)))
+                         seed=int(ctx.seeds.rng("learner").integers(2**31)))
         self.model.set_logger(Logger(folder=None, output_formats=[]))  # keeps PPO's last statistics, prints nothing
         self.rollout_size = cfg.n_envs * cfg.ppo_steps
         self.rollouts_per_round = max(1, math.ceil(cfg.round_steps / self.rollout_size))
@@ -205,17 +210,18 @@ class AdversarialLearner(Learner):
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
         ctx, cfg = self.ctx, self.config
         torch.manual_seed(int(rng.integers(2**31)))  # PPO samples its actions with torch's global generator
+        collect_seed, learn_seed = (int(s) for s in ctx.seeds.episodes("learner", 2, iteration))  # environments
         with numpy_global_seed(int(rng.integers(2**31))):
             if self.agent_states is None:
                 with ctx.phase("collect"):
-                    self._collect(int(rng.integers(2**31)))
+                    self._collect(collect_seed)
             with ctx.phase("discriminator"):
                 fit = train_discriminator(self.discriminator, self.optimizers["discriminator"], self.expert_inputs,
                                           (self.agent_states, self.agent_inputs), cfg.disc_updates,
                                           cfg.disc_batch_size, rng)
                 mean_reward = float(self.reward_of(self.agent_states, self.agent_inputs).mean())
             with ctx.phase("generator"):
-                steps = self._learn(int(rng.integers(2**31)))
+                steps = self._learn(learn_seed)
         stats = self.model.logger.name_to_value
         record = {
             "discriminator": {"loss": fit.loss, "accuracy_expert": fit.accuracy_expert,

@@ -68,7 +68,7 @@ def group_label(name: str, config: RunConfig) -> str:
 
 
 def plan(config: RunConfig, name: str | None = None, thesis: tuple | None = None) -> Planned:
-    config = RunConfig.from_dict({**config.to_dict(), **fast_overrides()}).resolved()
+    config = RunConfig.from_dict({**config.to_dict(), **fast_overrides(config.method)}).resolved()
     name = name or configuration_label(config)
     if thesis is None and not config.demos:
         thesis = thesis_numbers(config)

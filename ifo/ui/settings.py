@@ -30,7 +30,7 @@ from ifo.methods import METHODS, get_method
 from ifo.options import Spec, check_field, specs
 from ifo.reproduce import TABLES
 
-FAST_OVERRIDES = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2)
+FAST_OVERRIDES = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2, round_steps=512)
 MAIN_FIELDS = ("env", "method", "seed", "iterations")
 MAZE_FIELDS = ("maze_eval_layouts", "deadlock_guard")  # shown for mazes only (obs_mode etc. are advanced)
 MAZE_ONLY = MAZE_FIELDS + ("obs_mode", "image_size", "rollout_max_steps", "attention_probes")
@@ -38,9 +38,15 @@ NOT_WIDGETS = ("demos",)  # chosen on the runs page (uploads), not typed in
 METHOD_FIELDS = ("labels", "single_pass")  # what makes BC or BCO: the method chooses them
 
 
-def fast_overrides() -> dict:
-    """The small-run settings when IFO_LAB_FAST is set to 1/true/yes, else nothing."""
-    return dict(FAST_OVERRIDES) if os.environ.get("IFO_LAB_FAST", "").strip().lower() in ("1", "true", "yes") else {}
+def fast_overrides(method: str | None = None) -> dict:
+    """The small-run settings when IFO_LAB_FAST is set to 1/true/yes, else nothing; with a method,
+    only those its configuration has (GAIL has no I_pre)."""
+    if os.environ.get("IFO_LAB_FAST", "").strip().lower() not in ("1", "true", "yes"):
+        return {}
+    if method is None:
+        return dict(FAST_OVERRIDES)
+    own = get_method(method).learner_class.Config.field_names() | {s.name for s in specs(RunConfig)}
+    return {k: v for k, v in FAST_OVERRIDES.items() if k in own}
 
 
 def env_label(env: str) -> str:
@@ -115,7 +121,7 @@ class Choice:
 
     def config(self) -> RunConfig:
         """The resolved configuration; raises ValueError with a plain message if a value is impossible."""
-        return RunConfig.from_dict({**fast_overrides(), **self.values}).resolved()  # (small-run defaults only)
+        return RunConfig.from_dict({**fast_overrides(self.method), **self.values}).resolved()  # small-run defaults
 
     @classmethod
     def from_config(cls, config: RunConfig) -> "Choice":
