@@ -65,7 +65,8 @@ def live():
         # a key per draw: a phase may come back within one iteration (the maze's attention probes),
         # and two unkeyed charts with the same figure would share one auto-generated id
         diagram_area.plotly_chart(loop_diagram(run.records[-1] if run.records else None, phase, **sizes,
-                                               phase_boxes=boxes, doing=run.phase_text(phase)),
+                                               phase_boxes=boxes, doing=run.phase_text(phase),
+                                               layout=run.learner.diagram),
                                   key=f"step.diagram.live.{last['draws']}", config=CHART_CONFIG)
 
     if slot.advance(progress, on_phase):  # a Play just ended: redraw the buttons, stop the timer
@@ -81,7 +82,7 @@ def live():
             right.button("Keep mine as a copy", key="save.copy", on_click=slot.keep_as_copy)
     records = slot.records
     show_records(records, run.config.iterations, hide, sizes, (count_area, scrub_area, diagram_area),
-                 lambda shown: PanelContext(slot, run, records, shown))
+                 lambda shown: PanelContext(slot, run, records, shown), layout=run.learner.diagram)
     if not records:
         st.info("Press **Step** to train the first iteration.")
         return

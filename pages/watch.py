@@ -9,6 +9,7 @@ when the teacher has stepped.
 import streamlit as st
 
 from ifo import checkpoint
+from ifo.methods import get_method
 from ifo.runtime import limit_threads
 from ifo.ui import storage
 from ifo.ui.panels import PanelContext, show_records
@@ -66,6 +67,7 @@ first = records[0] if records else {}
 sizes = {"pre_size": first.get("idm", {}).get("train_size"),
          "expert_size": sum(first["idm"]["prediction_counts"]) if "idm" in first else None}
 show_records(records, int(config.get("iterations") or len(records)), hide, sizes, (st.empty(), st.empty(), st.empty()),
-             lambda shown: PanelContext(None, None, records, shown, config), key="watch")
+             lambda shown: PanelContext(None, None, records, shown, config), key="watch",
+             layout=get_method(str(config.get("method"))).learner_class.diagram)
 if not records:
     st.info("The teacher has not trained an iteration yet: this page follows along as they do.")

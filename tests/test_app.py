@@ -525,3 +525,18 @@ def test_the_lesson_builder_makes_a_link_without_the_user():
     hidden = open_step_page(hide="settings,idm", **{"step.method": "IUPE"})
     hidden.button(key="step").click().run()
     assert "panel.idm" not in chart_keys(hidden) and not hidden.sidebar.selectbox
+
+
+def test_each_learner_family_draws_its_own_loop():
+    from ifo.learners import LEARNERS
+    from ifo.ui.diagram import LAYOUTS, loop_diagram
+
+    for learner in LEARNERS.values():  # every phase lights a box of its learner's own diagram
+        boxes = LAYOUTS[learner.diagram].boxes
+        assert all(p.box in boxes for p in learner.phases), learner.key
+    gaifo = {"iteration": 2, "discriminator": {"accuracy_expert": 0.6, "accuracy_agent": 0.55, "mean_reward": 0.3},
+             "generator": {"loss": 0.01}, "evaluation": {"aer": 200.0, "performance": 0.4},
+             "samples": {"environment_steps": 4096}}
+    text = _texts(loop_diagram(gaifo, "discriminator", expert_size=500, layout="adversarial",
+                               phase_boxes={"discriminator": "discriminator"}))
+    assert "expert 60%, agent 55%" in text and "4,096 steps so far" in text and "The adversarial round" in text

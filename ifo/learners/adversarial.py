@@ -143,10 +143,11 @@ def numpy_global_seed(seed: int):
 
 class AdversarialLearner(Learner):
     key = "adversarial"
+    diagram = "adversarial"
     Config = AdversarialConfig
     phases = (
         Phase("collect", "running the untrained policy for the discriminator's first agent samples", "rollout"),
-        Phase("discriminator", "training the discriminator: expert samples against the agent's", "idm"),
+        Phase("discriminator", "training the discriminator: expert samples against the agent's", "discriminator"),
         Phase("generator", "training the policy with PPO on the discriminator's reward", "policy"),
     )
 

@@ -184,7 +184,7 @@ class Learner:
     key: ClassVar[str]  # the name methods use for this family ("bco", "cril", ...)
     Config: ClassVar[type[LearnerConfig]]
     phases: ClassVar[tuple[Phase, ...]]
-    diagram: ClassVar[object] = None  # an ifo.diagram.Diagram: boxes and arrows of its loop
+    diagram: ClassVar[str] = "bco"  # the layout of its loop diagram (ifo/ui/diagram.py LAYOUTS)
 
     def __init__(self, ctx: Context, config: LearnerConfig):
         self.ctx, self.config = ctx, config

@@ -118,11 +118,12 @@ class Remap(nn.Module):
 
 class ILPOLearner(Learner):
     key = "ilpo"
+    diagram = "ilpo"
     Config = ILPOConfig
     phases = (
-        Phase("latent", "training the latent forward model and the latent policy on T_e (Eqs 3.3-3.4)", "idm"),
+        Phase("latent", "training the latent forward model and the latent policy on T_e (Eqs 3.3-3.4)", "latent"),
         Phase("rollout", "running the policy to see which real action each latent action is", "rollout"),
-        Phase("remap", "learning the remapping from latent to real actions (Eq 3.5)", "label"),
+        Phase("remap", "learning the remapping from latent to real actions (Eq 3.5)", "remap"),
     )
 
     def __init__(self, ctx: Context, config: ILPOConfig):

@@ -1,12 +1,16 @@
-"""The BCO loop as a picture: I_pre -> I_s -> IDM -> labels -> policy -> rollouts -> sampling -> I_s.
+"""A learner's loop as a picture; the BCO loop: I_pre -> I_s -> IDM -> labels -> policy -> rollouts
+-> sampling -> I_s, and the loops of the adversarial learners (GAIL, GAIfO) and of ILPO.
 
-`loop_diagram(record, active_phase)` is a pure function (a record in, a plotly Figure out),
-drawn with shapes and annotations so it stays sharp on a projector. The box of the phase
-being trained is filled; the arrows carry the sizes of the data flowing between the
-boxes at that iteration: |I_pre|, |I_s| and its split between I_pre and I_pos, |T_e|,
-the |E| policy runs and their win probability P(g|E).
+`loop_diagram(record, active_phase, layout=...)` is a pure function (a record in, a plotly Figure
+out), drawn with shapes and annotations so it stays sharp on a projector. A learner names its
+layout (`Learner.diagram`) and its phases name their boxes. The box of the phase being trained
+is filled; the boxes and arrows carry the numbers of that iteration (for the BCO loop: |I_pre|,
+|I_s| and its split between I_pre and I_pos, |T_e|, the |E| policy runs and their P(g|E)).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
 
 import plotly.graph_objects as go
 
@@ -80,8 +84,8 @@ def _border(x: float, y: float, tx: float, ty: float) -> tuple[float, float]:
     return x + dx * (H / 2) / abs(dy), y + (H / 2 if dy > 0 else -H / 2)
 
 
-def _edge(fig: go.Figure, a: str, b: str, label: str = "", off: bool = False, size: int = 13) -> None:
-    (x0, y0, _), (x1, y1, _) = BOXES[a], BOXES[b]
+def _edge(fig: go.Figure, boxes: dict, a: str, b: str, label: str = "", off: bool = False, size: int = 13) -> None:
+    (x0, y0, _), (x1, y1, _) = boxes[a], boxes[b]
     sx, sy = _border(x0, y0, x1, y1)
     ex, ey = _border(x1, y1, x0, y0)
     color = MUTED if off else EDGE
@@ -98,17 +102,90 @@ def _edge(fig: go.Figure, a: str, b: str, label: str = "", off: bool = False, si
                            showarrow=False, yanchor="bottom" if top else "top", font=dict(size=size, color=color))
 
 
+def _pct(v) -> str:
+    return "?" if v is None else f"{v:.0%}"
+
+
+def _adversarial_texts(record: dict | None, pre_size: int | None, expert_size: int | None) -> tuple[dict, dict, set]:
+    r = record or {}
+    d, g, ev, smp = (r.get(k) or {} for k in ("discriminator", "generator", "evaluation", "samples"))
+    perf = ev.get("performance")
+    lines = {
+        "te": ["the expert's samples", f"|T_e| = {_n(expert_size)}"],
+        "discriminator": ["tells expert from agent", f"expert {_pct(d.get('accuracy_expert'))}, "
+                                                     f"agent {_pct(d.get('accuracy_agent'))}" if d else ""],
+        "reward": ["learned reward of the agent", f"mean {d['mean_reward']:.2f}" if d.get("mean_reward") is not None
+                   else ""],
+        "policy": ["PPO on D's reward", f"loss {g['loss']:.3f}" if g.get("loss") is not None else ""],
+        "rollout": ["the agent's samples", f"{_n(smp.get('environment_steps'))} steps so far" if smp else ""],
+        "evaluate": [f"AER {ev['aer']:.2f}" if ev.get("aer") is not None else "AER (Eq 4.1)",
+                     f"P {perf:.2f}" if perf is not None else "P (Eq 4.2)"],
+    }
+    return lines, {}, set()
+
+
+def _ilpo_texts(record: dict | None, pre_size: int | None, expert_size: int | None) -> tuple[dict, dict, set]:
+    r = record or {}
+    lat, pol, ev, smp = (r.get(k) or {} for k in ("latent", "policy", "evaluation", "samples"))
+    perf = ev.get("performance")
+    lines = {
+        "te": ["expert (s, s'), no a", f"|T_e| = {_n(expert_size)}"],
+        "latent": ["s' for each latent z; π(z | s)", f"error {lat['forward_error']:.3f}"
+                   if lat.get("forward_error") is not None else ""],
+        "remap": ["which real a is each z", f"{len(lat['remap'])} latent actions" if lat.get("remap") else ""],
+        "rollout": ["a few environment steps", f"{_n(smp.get('environment_steps'))} so far" if smp else ""],
+        "policy": ["Σ_z π(z | s) π(a | z, s)", f"agrees {pol['agreement']:.0%}" if pol.get("agreement") is not None
+                   else ""],
+        "evaluate": [f"AER {ev['aer']:.2f}" if ev.get("aer") is not None else "AER (Eq 4.1)",
+                     f"P {perf:.2f}" if perf is not None else "P (Eq 4.2)"],
+    }
+    return lines, {}, set()
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where a learner's boxes stand, how its arrows run, and what they say at an iteration."""
+
+    boxes: dict  # name -> (x, y, title)
+    edges: tuple  # (from, to, label): the label is literal text, or None for texts()'s arrow label
+    texts: Callable  # (record, pre_size, expert_size) -> (lines per box, arrow labels, boxes not used)
+    title: str = "The loop"
+
+
+LAYOUTS = {
+    "bco": Layout(BOXES, (("pre", "is", None), ("is", "idm", "train"), ("idm", "label", "label"), ("te", "label", ""),
+                          ("label", "policy", None), ("policy", "evaluate", ""), ("policy", "rollout", "run π"),
+                          ("rollout", "sampling", None), ("pre", "sampling", ""), ("sampling", "is", None)), _texts),
+    "adversarial": Layout(
+        {"te": (1.1, 3.6, "T_e"), "discriminator": (5.6, 3.6, "discriminator D"), "reward": (10.1, 3.6, "reward"),
+         "rollout": (5.6, 1.2, "agent's runs"), "policy": (10.1, 1.2, "policy  π(a | s)"),
+         "evaluate": (13.1, 1.2, "evaluation")},
+        (("te", "discriminator", "expert"), ("rollout", "discriminator", "agent"), ("discriminator", "reward", ""),
+         ("reward", "policy", "PPO"), ("policy", "rollout", "run π"), ("policy", "evaluate", "")),
+        _adversarial_texts, "The adversarial round"),
+    "ilpo": Layout(
+        {"te": (1.1, 3.6, "T_e"), "latent": (5.6, 3.6, "latent model"), "remap": (10.1, 3.6, "remap  z → a"),
+         "rollout": (5.6, 1.2, "env steps"), "policy": (10.1, 1.2, "policy  π(a | s)"),
+         "evaluate": (13.1, 1.2, "evaluation")},
+        (("te", "latent", "learn"), ("latent", "remap", "π(z | s)"), ("rollout", "remap", "(s, a, s')"),
+         ("remap", "policy", ""), ("policy", "rollout", "run π"), ("policy", "evaluate", "")),
+        _ilpo_texts, "ILPO's loop"),
+}
+
+
 def loop_diagram(record: dict | None, active_phase: str | None = None, pre_size: int | None = None,
                  expert_size: int | None = None, theme: str = "screen", phase_boxes: dict | None = None,
-                 doing: str | None = None) -> go.Figure:
+                 doing: str | None = None, layout: str = "bco") -> go.Figure:
     """The loop at one iteration (`record`, None before the first), with `active_phase`'s box
     highlighted (`phase_boxes`: the learner's phase -> box; `doing`: what that phase does, in words).
-    `pre_size` (|I_pre|) and `expert_size` (|T_e|) come from the run when known."""
-    lines, arrows, off = _texts(record, pre_size, expert_size)
+    `pre_size` (|I_pre|) and `expert_size` (|T_e|) come from the run when known; `layout` is the
+    learner's (`Learner.diagram`)."""
+    shape = LAYOUTS.get(layout, LAYOUTS["bco"])
+    lines, arrows, off = shape.texts(record, pre_size, expert_size)
     active = {**PHASE_BOX, **(phase_boxes or {})}.get(active_phase) if active_phase else None
     big = theme == "slide"
     fig = go.Figure()
-    for name, (x, y, title) in BOXES.items():
+    for name, (x, y, title) in shape.boxes.items():
         is_active = name == active
         fill = ACTIVE if is_active else (OFF if name in off else IDLE)
         fig.add_shape(type="rect", x0=x - W / 2, x1=x + W / 2, y0=y - H / 2, y1=y + H / 2, layer="below",
@@ -119,16 +196,9 @@ def loop_diagram(record: dict | None, active_phase: str | None = None, pre_size:
         fig.add_annotation(x=x, y=y, text=f"<b>{title}</b><br>{body}", showarrow=False, align="center",
                            font=dict(size=20 if big else 14, color=color))
     size = 18 if big else 13
-    _edge(fig, "pre", "is", arrows[("pre", "is")], off="pre" in off, size=size)
-    _edge(fig, "is", "idm", "train", off="idm" in off, size=size)
-    _edge(fig, "idm", "label", "label", off="idm" in off, size=size)
-    _edge(fig, "te", "label", "", off="label" in off, size=size)
-    _edge(fig, "label", "policy", arrows[("label", "policy")], size=size)
-    _edge(fig, "policy", "evaluate", "", size=size)
-    _edge(fig, "policy", "rollout", "run π", off="rollout" in off, size=size)
-    _edge(fig, "rollout", "sampling", arrows[("rollout", "sampling")], off="rollout" in off, size=size)
-    _edge(fig, "pre", "sampling", "", off="sampling" in off, size=size)
-    _edge(fig, "sampling", "is", arrows[("sampling", "is")], off="sampling" in off, size=size)
+    for a, b, label in shape.edges:
+        text = arrows.get((a, b), "") if label is None else label
+        _edge(fig, shape.boxes, a, b, text, off=(a in off or b in off) and a != "label", size=size)
     if active_phase:
         note = doing or f"now: {active_phase}"
         note = f"iteration {(record or {}).get('iteration', 0) + 1}, {note}"
@@ -136,7 +206,7 @@ def loop_diagram(record: dict | None, active_phase: str | None = None, pre_size:
         note = f"iteration {record['iteration']}" if record else "before the first iteration"
     fig.update_xaxes(visible=False, range=[-0.1, 14.3], fixedrange=True)
     fig.update_yaxes(visible=False, range=[0.05, 4.75], fixedrange=True, scaleanchor="x", scaleratio=1)
-    fig.update_layout(title=dict(text=f"The loop ({note})", font=dict(size=30 if big else 16)),
+    fig.update_layout(title=dict(text=f"{shape.title} ({note})", font=dict(size=30 if big else 16)),
                       template="plotly_white", margin=dict(l=5, r=5, t=40, b=5), height=900 if big else 340,
                       width=1600 if big else None, showlegend=False, dragmode=False,
                       plot_bgcolor="white")

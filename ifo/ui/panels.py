@@ -127,7 +127,7 @@ def _one(panel, ctx: PanelContext) -> None:
 
 
 def show_records(records: list[dict], total: int, hide: set[str], sizes: dict, areas: tuple,
-                 context: Callable[[int | None], PanelContext], key: str = "step") -> int | None:
+                 context: Callable[[int | None], PanelContext], key: str = "step", layout: str = "bco") -> int | None:
     """The iteration counter, the scrub slider, the loop diagram at the iteration shown, the metrics
     row and the registry's panels: what the step page and a watched (shared) run both draw.
     `areas` are (counter, slider, diagram) placeholders; `context(shown)` makes the panels' context.
@@ -145,10 +145,11 @@ def show_records(records: list[dict], total: int, hide: set[str], sizes: dict, a
                                        "show the iteration you pick. The latest is the default.")
     record = next((r for r in records if r["iteration"] == shown), records[-1] if records else None)
     if "diagram" not in hide:
-        diagram_area.plotly_chart(loop_diagram(record, None, **sizes), key=f"{key}.diagram", config=CHART_CONFIG)
-        st.caption("The loop of every IfO method here: the box being trained lights up; the numbers are the "
-                   "sizes of the data flowing round at the iteration shown. *Thesis Algorithms 5.1 (ABCO) and "
-                   "6.1 (IUPE).*")
+        diagram_area.plotly_chart(loop_diagram(record, None, **sizes, layout=layout), key=f"{key}.diagram",
+                                  config=CHART_CONFIG)
+        st.caption("The method's loop: the box being trained lights up; the numbers are those of the iteration "
+                   "shown. *Thesis Algorithms 5.1 (ABCO), 6.1 (IUPE), 8.1 (CRIL), 9.1 (SAIL); Sec 3.2-3.4 "
+                   "(ILPO, GAIL, GAIfO).*")
     if not records:
         return None
     if "metrics" not in hide:
