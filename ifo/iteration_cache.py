@@ -121,14 +121,7 @@ class IterationCache:
         self.evict()
 
     def discard(self, key: str) -> None:
-        path = self._path(key)
-        if path.exists():
-            aside = path.with_name(f".{path.name}.{uuid.uuid4().hex[:6]}.evicted")
-            try:
-                os.rename(path, aside)
-            except OSError:
-                return
-            shutil.rmtree(aside, ignore_errors=True)
+        _remove(self._path(key))
 
     def size(self) -> int:
         return sum(f.stat().st_size for f in self.root.glob("??/*/*") if f.is_file())
@@ -147,14 +140,20 @@ class IterationCache:
         for _, size, path in sorted(entries):
             if total <= 0.9 * self.max_bytes:
                 break
-            aside = path.with_name(f".{path.name}.{uuid.uuid4().hex[:6]}.evicted")
-            try:
-                os.rename(path, aside)
-            except OSError:
-                continue
-            shutil.rmtree(aside, ignore_errors=True)
-            total, removed = total - size, removed + 1
+            if _remove(path):
+                total, removed = total - size, removed + 1
         return removed
+
+
+def _remove(path: Path) -> bool:
+    """Delete an entry: renamed aside first (one atomic step), so a reader never meets half of it."""
+    aside = path.with_name(f".{path.name}.{uuid.uuid4().hex[:6]}.evicted")
+    try:
+        os.rename(path, aside)
+    except OSError:
+        return False
+    shutil.rmtree(aside, ignore_errors=True)
+    return True
 
 
 def wait_or_compute(cache: IterationCache, key: str, compute, timeout: float = WAIT_SECONDS):
