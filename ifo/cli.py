@@ -14,6 +14,7 @@ from pathlib import Path
 from ifo.config import RunConfig
 from ifo.envs import ENV_NAMES, UnknownEnvironment, get_env
 from ifo.methods import METHODS, UnknownMethod
+from ifo.options import parse_bool
 
 RUNS_DIR = Path("runs")
 DEFAULT_BENCH_ENVS = "cartpole,acrobot,mountaincar,lunarlander,maze5"
@@ -123,26 +124,44 @@ def cmd_experts(a: argparse.Namespace) -> int:
         raise CliError(f"--episodes must be a whole number >= 1, got {a.episodes}")
     if a.timesteps is not None and a.timesteps < 1:
         raise CliError(f"--timesteps must be a whole number >= 1, got {a.timesteps}")
-    envs = ENV_NAMES if a.env == "all" else [get_env(a.env).name]
-    if a.action == "train":
-        from ifo.experts.train import train_expert
+    from ifo.experts.train import parse_levels
 
+    levels = parse_levels(a.level)
+    envs = ENV_NAMES if a.env == "all" else [get_env(a.env).name]
+    if levels != [1]:  # expert levels exist for the control tasks only
+        mazes = [e for e in envs if get_env(e).is_maze]
+        if a.env != "all" and mazes:
+            raise CliError(f"{mazes[0]} has one expert (shortest paths): --level applies to the control tasks")
+        envs = [e for e in envs if not get_env(e).is_maze]
+    if a.action == "train":
+        from ifo.experts.train import describe_level1, train_expert, train_levels
+
+        steps = {"timesteps": a.timesteps} if a.timesteps else {}
         for env in envs:
-            if not get_env(env).is_maze:
-                train_expert(env, seed=a.seed, **({"timesteps": a.timesteps} if a.timesteps else {}))
+            if get_env(env).is_maze:
+                continue
+            if 1 in levels:
+                train_expert(env, seed=a.seed, **steps)
+            if any(level > 1 for level in levels):
+                train_levels(env, [level for level in levels if level > 1], seed=a.seed,
+                             log=lambda m: print(m, flush=True), **steps)
+                describe_level1(env)  # levels.json's level-1 entry, measured the same way
         return 0
     if a.action == "evaluate":
         from ifo.experts.demos import evaluate_expert
 
         for env in envs:
-            r = evaluate_expert(env, a.episodes)
-            print(json.dumps(r) if a.json else f"{env}: AER {r['aer']:.2f} ± {r['std']:.2f} over {r['episodes']} episodes")
+            for level in levels:
+                r = evaluate_expert(env, a.episodes, level=level)
+                print(json.dumps(r) if a.json else
+                      f"{env} level {level}: AER {r['aer']:.2f} ± {r['std']:.2f} over {r['episodes']} episodes")
         return 0
     if a.action == "demos":
         from ifo.experts.demos import make_demonstrations
 
         for env in envs:
-            make_demonstrations(env, a.episodes)
+            for level in levels:
+                make_demonstrations(env, a.episodes, level=level)
         return 0
     if a.action == "references":
         from ifo.experts.demos import measure_references
@@ -163,12 +182,26 @@ def cmd_bench(a: argparse.Namespace) -> int:
             raise CliError(f"bench reproduce needs --table ({', '.join(TABLES)})")
         envs = a.envs.split(",") if a.envs else None
         extra = {"maze_eval_layouts": a.maze_eval_layouts} if a.maze_eval_layouts else {}
-        if a.deadlock_guard:
-            extra["deadlock_guard"] = True
+        if a.deadlock_guard is not None:
+            extra["deadlock_guard"] = a.deadlock_guard
         if a.expert_episodes:
             extra["expert_episodes"] = a.expert_episodes
         rows = [r.strip() for r in a.rows.split(",")] if a.rows else None
-        text = reproduce(a.table, a.seeds, envs, a.iterations, rows=rows, **extra)
+        from ifo.reproduce import sweep_defaults
+
+        try:
+            with sweep_defaults(**_sweep_options(a)):  # on Ray unless --local; --store to resume
+                text = reproduce(a.table, a.seeds, envs, a.iterations, rows=rows, **extra)
+        except RuntimeError as exc:  # every training failed: say why in one line
+            raise CliError(str(exc)) from exc
+    elif a.what == "resilience":
+        from ifo.reproduce.chapter7 import resilience_study
+
+        extra = {"expert_episodes": a.expert_episodes} if a.expert_episodes else {}
+        levels = [int(v) for v in a.levels.split(",")] if a.levels else None
+        text = resilience_study(a.envs.split(",") if a.envs else None, a.seeds, a.iterations, levels=levels,
+                                rows=[r.strip() for r in a.rows.split(",")] if a.rows else None,
+                                ship=a.ship, figures_dir=a.figures, **extra, **_sweep_options(a))
     elif a.what == "vanishing":
         from ifo.bench import vanishing_table
 
@@ -180,7 +213,7 @@ def cmd_bench(a: argparse.Namespace) -> int:
     elif a.what == "speed":
         from ifo.bench import speed_table
 
-        text = speed_table(iterations=a.iterations or 5)
+        text = speed_table(iterations=a.iterations or 5, save_baseline=a.save_baseline)
     else:
         from ifo.bench import bench_table
 
@@ -192,6 +225,14 @@ def cmd_bench(a: argparse.Namespace) -> int:
 
         atomic_write_text(a.out, f"{text}\n\nMade with `{command}`.\n")
     return 0
+
+
+def _sweep_options(a: argparse.Namespace) -> dict:
+    """How `bench reproduce` / `bench resilience` run their trainings: on Ray (a local one by default, or
+    --address / RAY_ADDRESS), or --local in this process; --store DIR keeps results so a rerun resumes."""
+    if a.local and a.address:
+        raise CliError("--local runs here without Ray; it cannot go with --address")
+    return {"store": a.store, "address": a.address, "ray": not a.local}
 
 
 def cmd_export(a: argparse.Namespace) -> int:
@@ -231,6 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=100, help="episodes to evaluate or record (>= 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--timesteps", type=int, help="expert training steps (>= 1; default: per env)")
+    p.add_argument("--level", default="1",
+                   help="expert level of Table 7.1: 1 (the best, default) .. 5, a list (2,4), a range (2-5) or all; "
+                        "train: levels 2-5 are checkpoints of one training run per environment")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_experts)
 
@@ -245,10 +289,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_demos_check)
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
-    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "speed", "export", "vanishing"],
+    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "resilience", "speed", "export", "vanishing"],
                    default="baselines",
                    help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
-                        "table; speed: seconds per iteration and per phase; export: server-side figure export speed; "
+                        "table; resilience: Tables 7.2-7.6 (Ch. 7) as one sweep; speed: seconds per iteration and "
+                        "per phase; export: server-side figure export speed; "
                         "vanishing: BCO(α) against IUPE on CartPole with a small I_pre")
     from ifo.reproduce import TABLES
 
@@ -256,19 +301,32 @@ def build_parser() -> argparse.ArgumentParser:
                    help="which thesis table to reproduce")
     p.add_argument("--envs", help=f"comma-separated (default: {DEFAULT_BENCH_ENVS}, or the table's columns)")
     p.add_argument("--rows", help="reproduce: only these rows of the table (comma-separated labels, e.g. CRIL,IUPE)")
+    p.add_argument("--save-baseline", help="speed: also write the seconds per iteration to this JSON (docs/"
+                                           "speed-baseline.json is what later runs compare with)")
     p.add_argument("--out", help="also write the table (and the command that made it) to this file")
     p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"],
                    help="reproduce: evaluate mazes on held-out layouts (default) or on the demonstrations' layouts "
                         "(the thesis authors' protocol)")
-    p.add_argument("--deadlock-guard", action="store_true",
+    p.add_argument("--deadlock-guard", type=parse_bool, metavar="BOOL",
                    help="reproduce: maze evaluation ends an episode on the 4th visit to a cell with return -1 "
-                        "(the thesis authors' evaluation)")
+                        "(the thesis authors' evaluation; on unless false)")
     p.add_argument("--expert-episodes", type=int,
                    help="reproduce: how many demonstrations every method gets (default: per env; the shipped "
                         "5×5 and 10×10 maze demonstrations hold 1,000, one per training layout)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")
+    p.add_argument("--store", metavar="DIR",
+                   help="reproduce/resilience: keep every finished training in DIR (JSON lines); a rerun skips "
+                        "the ones already there (default: a temporary folder, nothing resumed)")
+    p.add_argument("--address", help="reproduce/resilience: a Ray cluster (ray://HOST:10001); default RAY_ADDRESS, "
+                                     "else a local Ray on 2 CPUs")
+    p.add_argument("--local", action="store_true",
+                   help="reproduce/resilience: train in this process, one after another, without Ray")
+    p.add_argument("--levels", help="resilience: expert levels (comma-separated, default 1,2,3,4,5)")
+    p.add_argument("--figures", metavar="DIR", help="resilience: also draw Fig 7.1 per environment into DIR (SVG)")
+    p.add_argument("--ship", action="store_true",
+                   help="resilience: also write the results to assets/resilience/<env>.jsonl (the app's page)")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("export", help="a saved run's figures (slide theme) as SVG/PNG/PDF, metrics.csv, config.json")

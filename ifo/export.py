@@ -265,7 +265,7 @@ def slide_theme(fig: go.Figure) -> go.Figure:
     large fonts). Redrawing with `theme="slide"` is better when you can; this is for figures
     you only have drawn."""
     out = go.Figure(fig)
-    out.update_layout(width=SLIDE_WIDTH, height=SLIDE_HEIGHT, font=dict(size=22), title_font_size=30,
+    out.update_layout(width=SLIDE_WIDTH, height=SLIDE_HEIGHT, font=dict(size=22), title_font_size=30, template="plotly_white",
                       legend=dict(orientation="h", y=-0.2), margin=dict(t=60))
     return out
 

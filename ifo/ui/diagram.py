@@ -84,22 +84,23 @@ def _border(x: float, y: float, tx: float, ty: float) -> tuple[float, float]:
     return x + dx * (H / 2) / abs(dy), y + (H / 2 if dy > 0 else -H / 2)
 
 
-def _edge(fig: go.Figure, boxes: dict, a: str, b: str, label: str = "", off: bool = False, size: int = 13) -> None:
+def _edge(notes: list, boxes: dict, a: str, b: str, label: str = "", off: bool = False, size: int = 13) -> None:
+    """An arrow from box a to box b (and its label) as annotations appended to `notes`."""
     (x0, y0, _), (x1, y1, _) = boxes[a], boxes[b]
     sx, sy = _border(x0, y0, x1, y1)
     ex, ey = _border(x1, y1, x0, y0)
     color = MUTED if off else EDGE
-    fig.add_annotation(x=ex, y=ey, ax=sx, ay=sy, xref="x", yref="y", axref="x", ayref="y", text="",
-                       showarrow=True, arrowhead=3, arrowsize=1.3, arrowwidth=2.5, arrowcolor=color)
+    notes.append(dict(x=ex, y=ey, ax=sx, ay=sy, xref="x", yref="y", axref="x", ayref="y", text="",
+                      showarrow=True, arrowhead=3, arrowsize=1.3, arrowwidth=2.5, arrowcolor=color))
     if not label:
         return
     if abs(ex - sx) < abs(ey - sy):  # vertical: beside the arrow
-        fig.add_annotation(x=(sx + ex) / 2, y=(sy + ey) / 2, text=label, showarrow=False, xanchor="left", xshift=6,
-                           font=dict(size=size, color=color))
+        notes.append(dict(x=(sx + ex) / 2, y=(sy + ey) / 2, text=label, showarrow=False, xanchor="left", xshift=6,
+                          font=dict(size=size, color=color)))
     else:  # horizontal: outside the row of boxes, so long labels never cover a box
         top = y0 > 2.4
-        fig.add_annotation(x=(sx + ex) / 2, y=y0 + (H / 2 + 0.05) * (1 if top else -1), text=label,
-                           showarrow=False, yanchor="bottom" if top else "top", font=dict(size=size, color=color))
+        notes.append(dict(x=(sx + ex) / 2, y=y0 + (H / 2 + 0.05) * (1 if top else -1), text=label,
+                          showarrow=False, yanchor="bottom" if top else "top", font=dict(size=size, color=color)))
 
 
 def _pct(v) -> str:
@@ -184,30 +185,29 @@ def loop_diagram(record: dict | None, active_phase: str | None = None, pre_size:
     lines, arrows, off = shape.texts(record, pre_size, expert_size)
     active = {**PHASE_BOX, **(phase_boxes or {})}.get(active_phase) if active_phase else None
     big = theme == "slide"
-    fig = go.Figure()
+    shapes, notes = [], []  # gathered as plain dicts and set once: a figure built shape by shape is 5x slower
     for name, (x, y, title) in shape.boxes.items():
         is_active = name == active
         fill = ACTIVE if is_active else (OFF if name in off else IDLE)
-        fig.add_shape(type="rect", x0=x - W / 2, x1=x + W / 2, y0=y - H / 2, y1=y + H / 2, layer="below",
-                      line=dict(color=ACTIVE if is_active else (MUTED if name in off else EDGE),
-                                width=4 if is_active else 2), fillcolor=fill)
+        shapes.append(dict(type="rect", x0=x - W / 2, x1=x + W / 2, y0=y - H / 2, y1=y + H / 2, layer="below",
+                           line=dict(color=ACTIVE if is_active else (MUTED if name in off else EDGE),
+                                     width=4 if is_active else 2), fillcolor=fill))
         color = "white" if is_active else (MUTED if name in off else TEXT)
         body = "<br>".join(t for t in lines[name] if t)
-        fig.add_annotation(x=x, y=y, text=f"<b>{title}</b><br>{body}", showarrow=False, align="center",
-                           font=dict(size=20 if big else 14, color=color))
+        notes.append(dict(x=x, y=y, text=f"<b>{title}</b><br>{body}", showarrow=False, align="center",
+                          font=dict(size=20 if big else 14, color=color)))
     size = 18 if big else 13
     for a, b, label in shape.edges:
         text = arrows.get((a, b), "") if label is None else label
-        _edge(fig, shape.boxes, a, b, text, off=(a in off or b in off) and a != "label", size=size)
+        _edge(notes, shape.boxes, a, b, text, off=(a in off or b in off) and a != "label", size=size)
     if active_phase:
         note = doing or f"now: {active_phase}"
         note = f"iteration {(record or {}).get('iteration', 0) + 1}, {note}"
     else:
         note = f"iteration {record['iteration']}" if record else "before the first iteration"
-    fig.update_xaxes(visible=False, range=[-0.1, 14.3], fixedrange=True)
-    fig.update_yaxes(visible=False, range=[0.05, 4.75], fixedrange=True, scaleanchor="x", scaleratio=1)
-    fig.update_layout(title=dict(text=f"{shape.title} ({note})", font=dict(size=30 if big else 16)),
-                      template="plotly_white", margin=dict(l=5, r=5, t=40, b=5), height=900 if big else 340,
-                      width=1600 if big else None, showlegend=False, dragmode=False,
-                      plot_bgcolor="white")
-    return fig
+    return go.Figure(layout=dict(
+        shapes=shapes, annotations=notes, title=dict(text=f"{shape.title} ({note})", font=dict(size=30 if big else 16)),
+        xaxis=dict(visible=False, range=[-0.1, 14.3], fixedrange=True),
+        yaxis=dict(visible=False, range=[0.05, 4.75], fixedrange=True, scaleanchor="x", scaleratio=1),
+        **({"template": "plotly_white"} if big else {}), margin=dict(l=5, r=5, t=40, b=5), height=900 if big else 340,
+        width=1600 if big else None, showlegend=False, dragmode=False, plot_bgcolor="white"))
