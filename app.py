@@ -62,4 +62,5 @@ st.navigation([home, step_page,
                st.Page("pages/compare.py", title="Compare and ablate", icon=":material/compare_arrows:",
                        url_path="compare"),
                st.Page("pages/watch.py", title="Watch a shared run", icon=":material/visibility:",
-                       url_path="watch")]).run()
+                       url_path="watch"),
+               st.Page("pages/resilience.py", title="Sub-optimal experts", icon=":material/trending_down:", url_path="resilience")]).run()

@@ -32,6 +32,10 @@ MAX_SEED = 2**32 - 1
 CONFIG_SCHEMA = 2  # 1: one flat dict (before learners had their own configuration)
 
 
+# maze-only evaluation settings, drawn only for mazes (obs_mode and the like are advanced settings)
+MAZE_EVALUATION_FIELDS = ("maze_eval_layouts", "deadlock_guard")
+
+
 @dataclass(frozen=True)
 class RunConfig:
     env: str = option("cartpole", f"the task the expert demonstrated: one of {', '.join(ENV_NAMES)}, or a "
@@ -92,6 +96,8 @@ class RunConfig:
                     v = source.get(s.name)
             values[s.name] = v
         values["env"], values["method"] = spec.name, method.name
+        if not spec.is_maze:  # settings that only a maze reads take their defaults: they do not make another run
+            values.update({name: getattr(RunConfig, name) for name in MAZE_EVALUATION_FIELDS})
         if learner.fixed_iterations() is not None:
             values["iterations"] = learner.fixed_iterations()
         cfg = replace(self, **values, learner=learner)

@@ -744,7 +744,7 @@ def policy_map(records: Sequence[dict], iteration: int | None = None, action_nam
 
 # ----------------------------------------------------------------------------- resilience (Ch. 7, Fig 7.1)
 RESILIENCE_METRICS = {"aer": "AER", "performance": "P (against this expert)",
-                      "performance_expert1": "P against Expert¹", "fidelity": "trajectory fidelity (0 = expert's states)"}
+                      "performance_expert1": "P against Expert¹", "fidelity": "fidelity (0 = the expert's states)"}
 
 
 def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", metric: str = "aer",
@@ -760,12 +760,16 @@ def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", 
         raise ValueError(f"metric must be one of {', '.join(RESILIENCE_METRICS)}, got {metric!r}")
     import numpy as np
 
-    title = f"Agent {RESILIENCE_METRICS[metric]} against the expert's AER ({env})"
+    title = f"{RESILIENCE_METRICS[metric]} against the expert's AER ({env})"
     mine = [r for r in results if r.get("env") == env and r.get("expert_aer") is not None]
     learners = [r for r in mine if r.get("method") != "Random" and not str(r.get("method", "")).startswith("Expert")]
     if not learners:
         return _empty(title, "No results for this environment yet", theme)
     fig = go.Figure()
+    xs = sorted({float(r["expert_aer"]) for r in mine})
+    if metric == "aer":  # the expert itself, y = x (thesis Fig 7.1's blue line), under the methods' lines
+        fig.add_trace(go.Scatter(x=xs, y=xs, mode="lines+markers", name="expert",
+                                 line=dict(color=COLORS[0], width=2, dash="dash"), marker=dict(size=5)))
     methods = list(dict.fromkeys(r["method"] for r in learners))
     for k, method in enumerate(methods):
         by_level: dict[int, list[dict]] = {}
@@ -787,9 +791,7 @@ def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", 
             tx, ty = zip(*sorted(thesis[method]))
             fig.add_trace(go.Scatter(x=list(tx), y=list(ty), mode="lines+markers", name=f"{method} (thesis)",
                                      line=dict(color=color, dash="dot"), marker=dict(symbol="x"), opacity=0.6))
-    xs = sorted({float(r["expert_aer"]) for r in mine})
-    if metric == "aer":  # the expert itself: y = x (thesis Fig 7.1's blue line)
-        fig.add_trace(go.Scatter(x=xs, y=xs, mode="lines+markers", name="expert", line=dict(color=COLORS[0], width=3)))
+    if metric == "aer":
         randoms = [r["aer"] for r in results
                    if r.get("env") == env and r.get("method") == "Random" and r.get("aer") is not None]
         _references(fig, [("random", float(np.mean(randoms)) if randoms else None, RANDOM_COLOR)])

@@ -357,3 +357,51 @@ def test_fixed_figures_draw_on_slides_and_serialise(draw, n):
         assert fig.data and pio.from_json(pio.to_json(fig)).data
         fig.to_dict()
     assert fig.layout.width == 1600
+
+
+# ----------------------------------------------------------------------------- Fig 7.1 (resilience)
+def _resilience_results():
+    rows = []
+    for level, expert in ((1, 500.0), (3, 350.0), (5, 110.0)):
+        for seed in (0, 1):
+            rows.append({"env": "cartpole", "method": "BC", "level": level, "seed": seed, "expert_aer": expert,
+                         "aer": expert - 10 * seed, "performance": 1.0, "performance_expert1": expert / 500,
+                         "fidelity": 0.1 * level})
+        rows.append({"env": "cartpole", "method": "ILPO", "level": level, "seed": 0, "expert_aer": expert,
+                     "aer": 500.0, "performance": 500 / expert, "performance_expert1": 1.0, "fidelity": 0.2})
+        rows.append({"env": "cartpole", "method": f"Expert{level}", "level": level, "seed": 0, "expert_aer": expert,
+                     "aer": expert, "performance": 1.0})
+        rows.append({"env": "cartpole", "method": "Random", "level": level, "seed": 0, "expert_aer": None,
+                     "aer": 20.0, "performance": 0.0})
+    rows.append({"env": "acrobot", "method": "BC", "level": 1, "seed": 0, "expert_aer": -80.0, "aer": -90.0})
+    return rows
+
+
+def test_resilience_curves_draw_one_line_per_method_against_the_experts_aer():
+    fig = figures.resilience_curves(_resilience_results(), "cartpole")
+    names = [t.name for t in fig.data]
+    assert names == ["expert", "BC", "ILPO"]  # references are not methods; the expert is the line y = x, drawn first
+    bc = fig.data[1]
+    assert list(bc.x) == [110.0, 350.0, 500.0]  # sorted by the expert's AER
+    assert list(bc.y) == pytest.approx([105.0, 345.0, 495.0])  # mean over seeds
+    assert list(bc.error_y.array) == pytest.approx([5.0, 5.0, 5.0])  # one sd
+    assert list(fig.data[0].x) == list(fig.data[0].y) == [110.0, 350.0, 500.0]
+    assert any(a.text == "random" for a in fig.layout.annotations)
+    assert "cartpole" in fig.layout.title.text
+
+
+def test_resilience_curves_show_fidelity_and_performance_and_the_thesis_dotted():
+    fid = figures.resilience_curves(_resilience_results(), "cartpole", metric="fidelity")
+    assert [t.name for t in fid.data] == ["BC", "ILPO"]
+    assert list(fid.data[0].y) == pytest.approx([0.5, 0.3, 0.1])
+    perf = figures.resilience_curves(_resilience_results(), "cartpole", metric="performance")
+    assert list(perf.data[1].y) == pytest.approx([500 / 110, 500 / 350, 1.0])
+    with_thesis = figures.resilience_curves(_resilience_results(), "cartpole", theme="slide",
+                                            thesis={"BC": [(500, 500), (112, 155.96)]})
+    dotted = next(t for t in with_thesis.data if t.name == "BC (thesis)")
+    assert dotted.line.dash == "dot" and list(dotted.x) == [112, 500]
+    assert with_thesis.layout.width == 1600  # the slide theme
+    empty = figures.resilience_curves(_resilience_results(), "mountaincar")
+    assert not empty.data and "No results" in empty.layout.annotations[0].text
+    with pytest.raises(ValueError):
+        figures.resilience_curves([], "cartpole", metric="nope")

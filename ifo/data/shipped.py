@@ -3,6 +3,11 @@
 Control tasks: an SB3-layout .npz with next states, plus the true actions in a separate
 `*-actions.npz`. Maze: the layouts and the agent's cells along the shortest paths;
 images (or vector observations) are rendered when loaded, at the size a run asks for.
+
+Expert levels (thesis Ch. 7): level 1 is `<env>.npz` (+ `<env>-actions.npz`); levels 2-5 are one
+file each, `<env>-level<K>.npz`, holding the true actions too (only BC and GAIL are given them, as
+with anyone's demonstrations), made by `python -m ifo experts demos --env ENV --level K`. A run on
+level K's demonstrations measures Performance against that expert's AER (`level_references`).
 """
 from __future__ import annotations
 
@@ -32,18 +37,46 @@ def _read(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
     return data
 
 
+def level_demos_path(spec: EnvSpec, level: int = 1) -> Path:
+    """The shipped demonstrations of expert level `level` (1: the best, `<env>.npz`)."""
+    from ifo.experts import check_level
+
+    level = check_level(level)
+    return shipped_demos_path(spec) if level == 1 else shipped_demos_path(spec).with_name(f"{spec.name}-level{level}.npz")
+
+
+def level_references(spec: EnvSpec, level: int = 1) -> dict:
+    """{"random_aer", "expert_aer"} that Performance normalises by for a run on level `level`'s demonstrations:
+    the random policy's AER and that expert's own AER, both on the evaluation episodes (Sec 7.3: P = 1 means
+    'as good as this expert', not 'solved'). Level 1: assets/references.json as before."""
+    from ifo.experts import check_level, level_info
+
+    level = check_level(level)
+    refs = dict(spec.references())
+    if level == 1:
+        return {"random_aer": refs.get("random_aer"), "expert_aer": refs.get("expert_aer")}
+    info = level_info(spec, level)
+    if not info:
+        raise DemoError(f"no expert level {level} for {spec.name} in assets/experts/levels.json; make it with "
+                        f"`python -m ifo experts train --env {spec.name} --level {level}`")
+    return {"random_aer": refs.get("random_aer"), "expert_aer": info["aer"]}
+
+
 def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_size: int = 32,
-                                episodes: int | None = None) -> Demonstrations:
-    """The shipped demonstrations; maze frames are drawn for the first `episodes` only (all if None)."""
-    path = shipped_demos_path(spec)
+                                episodes: int | None = None, level: int = 1) -> Demonstrations:
+    """The shipped demonstrations (of expert level `level`, 1..5); maze frames are drawn for the first
+    `episodes` only (all if None)."""
+    if spec.is_maze and level != 1:
+        raise DemoError(f"{spec.name} has one expert (shortest paths): no level {level}")
+    path = level_demos_path(spec, level)
     if not path.exists():
         raise DemoError(f"no shipped demonstrations at {path}; make them with "
-                        f"`python -m ifo experts demos --env {spec.name}`")
+                        f"`python -m ifo experts demos --env {spec.name}" + (f" --level {level}`" if level != 1 else "`"))
     if not spec.is_maze:
         env = spec.make()
         shape = tuple(env.observation_space.shape)
         env.close()
-        return load_demonstrations(path, spec, shape, actions_path=shipped_actions_path(spec))
+        return load_demonstrations(path, spec, shape, actions_path=shipped_actions_path(spec) if level == 1 else None)
     return load_maze_demonstrations(spec, obs_mode, image_size, episodes)
 
 

@@ -2,10 +2,13 @@
 
     python -m ifo experts demos --env cartpole        # assets/demos/cartpole.npz (+ -actions.npz)
     python -m ifo experts references --env cartpole   # random and expert AER -> assets/references.json
+    python -m ifo experts demos --env cartpole --level 3   # assets/demos/cartpole-level3.npz (+ -actions.npz)
 
 Demonstrations use training seeds 0, 1, ...; every evaluation (the references included)
 uses separate seeds (`ifo.seeds.EVAL_SEED_BASE`) or, for the maze, held-out layouts.
-Like the thesis's experts, episodes below a quality threshold are not kept.
+Like the thesis's experts, level-1 episodes below a quality threshold are not kept; the
+sub-optimal levels (2-5, Ch. 7) keep every episode, so their demonstrations show that expert as it
+is (their mean return is the level's AER on seeds 0..episodes-1).
 """
 from __future__ import annotations
 
@@ -42,14 +45,18 @@ def _random(n_actions: int, seed: int):
     return act
 
 
-def make_demonstrations(env: str, episodes: int = 100, log=print) -> dict:
+def make_demonstrations(env: str, episodes: int = 100, log=print, level: int = 1) -> dict:
+    from ifo.data.shipped import level_demos_path
+
     spec = get_env(env)
     if spec.is_maze:
+        if level != 1:
+            raise ValueError(f"{spec.name} has one expert (shortest paths): no level {level}")
         return _make_maze_demonstrations(spec, episodes, log)
-    expert = load_expert(spec)
+    expert = load_expert(spec, level)
     pool = EnvPool(spec)
     kept, seed, batches = [], 0, 0
-    threshold = KEEP_THRESHOLD.get(spec.name, -np.inf)
+    threshold = KEEP_THRESHOLD.get(spec.name, -np.inf) if level == 1 else -np.inf
     while len(kept) < episodes and batches < 20:
         seeds = np.arange(seed, seed + episodes)
         ro = run_episodes(pool, _greedy(expert), seeds)
@@ -74,10 +81,24 @@ def make_demonstrations(env: str, episodes: int = 100, log=print) -> dict:
               "rewards": np.concatenate(rewards).astype(np.float32), "episode_starts": np.concatenate(starts)}
     returns = np.array([ro.episodes[e].ret for ro, e in kept])
     arrays["episode_returns"] = returns.astype(np.float32)
-    atomic_write_bytes(shipped_demos_path(spec), npz_bytes(arrays))
-    atomic_write_bytes(shipped_actions_path(spec), npz_bytes({"actions": np.concatenate(actions).astype(np.int64)}))
-    summary = {"env": spec.name, "episodes": len(kept), "transitions": int(len(arrays["obs"])),
-               "mean_return": float(returns.mean())}
+    all_actions = np.concatenate(actions).astype(np.int64)
+    if level == 1:  # the level-1 files keep the true actions apart (`*-actions.npz`)
+        atomic_write_bytes(shipped_demos_path(spec), npz_bytes(arrays))
+        atomic_write_bytes(shipped_actions_path(spec), npz_bytes({"actions": all_actions}))
+        size = shipped_demos_path(spec).stat().st_size + shipped_actions_path(spec).stat().st_size
+    else:  # levels 2-5: one file that also holds the actions (only BC and GAIL ever see them); it loads
+        #    as anyone's demonstrations too (`train --demos assets/demos/<env>-level<K>.npz`)
+        path = level_demos_path(spec, level)
+        atomic_write_bytes(path, npz_bytes({**arrays, "actions": all_actions}))
+        size = path.stat().st_size
+    summary = {"env": spec.name, "level": level, "episodes": len(kept), "transitions": int(len(arrays["obs"])),
+               "mean_return": float(returns.mean()), "bytes": size}
+    if level != 1:
+        from ifo.experts.train import _write_level_info
+
+        _write_level_info(spec.name, level, {"demos_episodes": len(kept), "demos_transitions": summary["transitions"],
+                                             "demos_mean_return": round(summary["mean_return"], 3),
+                                             "demos_bytes": size}, merge=True)
     log(json.dumps(summary))
     return summary
 
@@ -148,7 +169,7 @@ def measure_references(env: str, episodes: int = 100, log=print) -> dict:
     return refs
 
 
-def evaluate_expert(env: str, episodes: int = 100) -> dict:
+def evaluate_expert(env: str, episodes: int = 100, level: int = 1) -> dict:
     """The expert's AER over the evaluation episodes (held-out seeds, or held-out maze layouts)."""
     spec = get_env(env)
     if spec.is_maze:
@@ -158,8 +179,8 @@ def evaluate_expert(env: str, episodes: int = 100) -> dict:
         expert = ShortestPathExpert()
     else:
         pool, seeds = EnvPool(spec), EVAL_SEED_BASE + np.arange(episodes)
-        expert = load_expert(spec)
+        expert = load_expert(spec, level)
     ro = run_episodes(pool, _greedy(expert), seeds, record=False)
     returns = ro.returns
-    return {"env": spec.name, "episodes": episodes, "aer": float(returns.mean()), "std": float(returns.std()),
+    return {"env": spec.name, "level": level, "episodes": episodes, "aer": float(returns.mean()), "std": float(returns.std()),
             "goal_rate": float(ro.goals.mean())}

@@ -11,6 +11,14 @@ from stochastic rollouts).
 The tables themselves live one module per chapter in this package (`chapter5_6.py`, ...), each
 calling `register(Table(...))`; every module here is imported, so a new chapter is a new file.
 A row whose method is not built (and has no `runner` of its own) shows the thesis's numbers only.
+
+The trainings (row × environment × seed) run through the sweep engine (`ifo.sweep`): the command
+line runs them on Ray (`--address`, else a local Ray on 2 CPUs) and, with `--store DIR`, keeps each
+finished training in DIR so a rerun skips it; the table is rendered from the stored results.
+`reproduce()` takes the sweep's options as keywords (or from a `with sweep_defaults(...)` block, as
+the command line gives them): `store` (a folder; default a temporary one),
+`address` (a Ray cluster), `ray` (False: in this process, one after another, the default when
+called from Python), `progress` (the progress bar) and `train` (False: only render what `store` holds).
 """
 from __future__ import annotations
 
@@ -18,6 +26,7 @@ import sys
 import time
 import importlib
 import pkgutil
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -139,13 +148,115 @@ def _protocol(extra: dict) -> str:
     layouts = ("the demonstrations' maze layouts" if extra.get("maze_eval_layouts") == "demonstration"
                else "held-out maze layouts")
     guard = (", an episode ending with return −1 on the 4th visit to a cell (deadlock guard)"
-             if extra.get("deadlock_guard") else "")
+             if extra.get("deadlock_guard", True) else ", no deadlock guard")
     demos = f"; {extra['expert_episodes']} demonstrations" if extra.get("expert_episodes") else ""
     return f"held-out seeds for the vector tasks, {layouts}{guard}{demos}"
 
 
+SWEEP_OPTIONS = ("store", "address", "ray", "progress", "train")  # reproduce()'s keywords for the sweep, not runs
+_SWEEP_DEFAULTS: dict = {}  # what `sweep_defaults` sets (the command line: Ray, --store, --address)
+
+
+@contextmanager
+def sweep_defaults(**options):
+    """Within the block, reproduce() runs its trainings so unless told otherwise (the command line wraps its
+    call in this, so `reproduce(table, ...)` keeps its signature)."""
+    unknown = set(options) - set(SWEEP_OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown sweep option(s): {', '.join(sorted(unknown))}")
+    old = dict(_SWEEP_DEFAULTS)
+    _SWEEP_DEFAULTS.update(options)
+    try:
+        yield
+    finally:
+        _SWEEP_DEFAULTS.clear()
+        _SWEEP_DEFAULTS.update(old)
+
+
+def row_seeds(row: Row, seeds: int) -> int:
+    """How many trainings a row needs per environment: one for reference rows (no training, no seed)."""
+    return 1 if row.method in ("expert", "random") or getattr(row.runner, "seedless", False) else seeds
+
+
+def _slim(result: dict) -> dict:
+    """A result as the store keeps it: every iteration's record is replaced by its curve (AER, P, fidelity,
+    and the samples used so far where the learner counts them: Table 8.3)."""
+    out = {k: v for k, v in result.items() if k != "records"}
+    if result.get("records"):
+        out["curve"] = [{"iteration": r.get("iteration"),
+                         **{k: r.get("evaluation", {}).get(k) for k in ("aer", "performance", "fidelity")},
+                         **({"samples": r["samples"]} if "samples" in r else {})}
+                        for r in result["records"]]
+    return out
+
+
+def train_row(row: Row, env: str, seed: int, iterations: int | None, settings: dict) -> dict:
+    """One training of a table (a sweep task): `run_row`, its result as the store keeps it."""
+    return _slim(run_row(row, env, seed, iterations, **settings))
+
+
+def row_task(table: Table, row: Row, env: str, seed: int, iterations: int | None, settings: dict):
+    """The sweep task of one row × environment × seed; its key names everything that makes it this training."""
+    from ifo.sweep import Task
+
+    spec = {"table": table.table_id, "row": row.label, "method": row.method, "overrides": dict(row.overrides),
+            "env": env, "seed": seed, "iterations": iterations, "settings": dict(settings)}
+    return Task(spec, train_row, {"row": row, "env": env, "seed": seed, "iterations": iterations,
+                                  "settings": dict(settings)}, light=row_seeds(row, 2) == 1)
+
+
+def train_rows(table: Table, chosen: list[Row], env_names: list[str], seeds: int, iterations: int | None,
+               settings: dict, log, store=None, address: str | None = None, ray: bool = False,
+               progress: bool = True, train: bool = True) -> tuple[dict, int]:
+    """Every training of the chosen rows through the sweep engine; (row label, env) -> results over seeds
+    (the finished ones), and how many failed."""
+    import tempfile
+
+    from ifo.sweep import ResultStore, run_sweep
+
+    from ifo.methods import METHODS
+
+    tasks = {(row.label, env, seed): row_task(table, row, env, seed, iterations, settings)
+             for row in chosen if implemented(row) for env in env_names for seed in range(row_seeds(row, seeds))}
+    for row in chosen:  # impossible settings: one clear error now, not a failed training per seed later
+        if row.method in METHODS:
+            for env in env_names:
+                RunConfig.from_dict({"env": env, "method": row.method, "seed": 0, "iterations": iterations,
+                                     **row.overrides, **settings}).resolved()
+
+    def on_row(task, stored) -> None:
+        r, spec = stored["result"], task.spec
+        log(f"[{table.table_id}] {spec['row']} on {spec['env']}, seed {spec['seed']}: P {r.get('performance')} "
+            f"AER {r.get('aer')} ({r.get('seconds', 0.0):.0f} s)")
+
+    scratch = tempfile.TemporaryDirectory(prefix="ifo-sweep-") if store is None else None
+    results_store = ResultStore(store if store is not None else scratch.name)
+    try:
+        if train:
+            done, report = run_sweep(list(tasks.values()), results_store, address=address,
+                                     local=not (ray or address), on_row=on_row, desc=f"Table {table.table_id}",
+                                     progress=progress)
+        else:  # render only: what the store holds
+            done, report = results_store.done(), None
+        errors = [r["error"] for r in results_store.latest().values() if r.get("error")]
+    finally:
+        if scratch is not None:
+            scratch.cleanup()
+    if report is not None and (store is not None or report.failed):
+        log(f"[{table.table_id}] {report.line()}" + (f"; results in {store}" if store is not None else ""))
+    if tasks and not done:  # nothing to show: say why instead of a table of failures
+        raise RuntimeError(f"every training of table {table.table_id} failed" +
+                           (f"; one error: {errors[-1].strip().splitlines()[-1]}" if errors else ""))
+    results: dict = {}
+    for (label, env, seed), task in tasks.items():
+        if task.key in done:
+            results.setdefault((label, env), []).append(done[task.key]["result"])
+    return results, len(tasks) - len(done)
+
+
 def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iterations: int | None = None,
               log=lambda m: print(m, file=sys.stderr, flush=True), rows: list[str] | None = None, **extra) -> str:
+    sweep = {**_SWEEP_DEFAULTS, **{k: extra.pop(k) for k in SWEEP_OPTIONS if k in extra}}
     if table_id not in TABLES:
         raise ValueError(f"unknown table {table_id!r}; choose from {', '.join(TABLES)}")
     table = TABLES[table_id]
@@ -162,6 +273,8 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
     if rows is not None and len(chosen) != len(set(rows)):
         raise ValueError(f"table {table_id} has no row {', '.join(set(rows) - {r.label for r in chosen})}; its rows: "
                          f"{', '.join(r.label for r in table.rows)}")
+    trained, failed = train_rows(table, chosen, env_names, seeds, iterations, {**table.settings, **extra}, log,
+                                 **sweep)
     for row in chosen:
         for env in env_names:
             theirs = table.thesis.get(row.label, {}).get(env, (None, None))
@@ -170,12 +283,12 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
                 out.append(f"| {row.label} | {env} | not implemented | {number(theirs[0])} | — | {number(theirs[1])} "
                            f"| — {more}| — | |")
                 continue
-            results = []
-            for seed in range(seeds if row.method not in ("expert", "random") else 1):
-                r = run_row(row, env, seed, iterations, **{**table.settings, **extra})
-                results.append(r)
-                log(f"[{table_id}] {row.label} on {env}, seed {seed}: P {r['performance']} AER {r['aer']} "
-                    f"({r['seconds']:.0f} s)")
+            results = trained.get((row.label, env), [])
+            if not results:
+                more = "".join(f"| — | {thesis_cell(theirs, c.thesis, c.fmt)} " for c in table.columns)
+                out.append(f"| {row.label} | {env} | failed | {number(theirs[0])} | — | {number(theirs[1])} "
+                           f"| — {more}| — | |")
+                continue
             target = table.targets.get((row.label, env))
             verdict = ""
             if target:
@@ -193,6 +306,9 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
             f"P and AER at the last iteration over 100 evaluation episodes (MAP actions; {_protocol(extra)}). "
             "Rows marked 'not implemented' show the thesis's numbers only. The thesis's BCO rows are compared with "
             "our BCO(α)."]
+    if failed:
+        out += ["", f"{failed} training(s) failed: their cells average the seeds that finished (the store keeps "
+                    "each failure's error; a rerun with the same --store retries them)."]
     if table.note:
         out += ["", table.note]
     return "\n".join(out)

@@ -121,11 +121,13 @@ def samples_to_best(result: dict) -> float | None:
     """Table 8.3: environment steps plus expert samples used when the run first reached its best AER."""
     if "samples_to_best" in result:
         return result["samples_to_best"]
-    records = result.get("records") or []
-    if not records or "samples" not in records[0]:
+    # a fresh result has its records; one from the sweep store has their curve (AER at the top level)
+    points = [{"aer": r["evaluation"]["aer"], "samples": r.get("samples")} for r in result.get("records") or []] \
+        or result.get("curve") or []
+    if not points or points[0].get("samples") is None:
         return None
-    best = max(r["evaluation"]["aer"] for r in records)
-    first = next(r for r in records if r["evaluation"]["aer"] >= best)
+    best = max(p["aer"] for p in points)
+    first = next(p for p in points if p["aer"] >= best)
     return first["samples"]["environment_steps"] + first["samples"]["expert_samples"]
 
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import streamlit as st
 
-from ifo.config import RunConfig, switches
+from ifo.config import MAZE_EVALUATION_FIELDS, RunConfig, switches
 from ifo.envs import ENVS, get_env
 from ifo.methods import METHODS, get_method
 from ifo.options import Spec, check_field, specs
@@ -32,7 +32,7 @@ from ifo.reproduce import TABLES
 
 FAST_OVERRIDES = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2, round_steps=512)
 MAIN_FIELDS = ("env", "method", "seed", "iterations")
-MAZE_FIELDS = ("maze_eval_layouts", "deadlock_guard")  # shown for mazes only (obs_mode etc. are advanced)
+MAZE_FIELDS = MAZE_EVALUATION_FIELDS  # shown for mazes only
 MAZE_ONLY = MAZE_FIELDS + ("obs_mode", "image_size", "rollout_max_steps", "attention_probes")
 NOT_WIDGETS = ("demos",)  # chosen on the runs page (uploads), not typed in
 METHOD_FIELDS = ("labels", "single_pass")  # what makes BC or BCO: the method chooses them

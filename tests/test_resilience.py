@@ -1,0 +1,291 @@
+"""Chapter 7 (resilience to sub-optimal experts): the expert levels, level-aware demonstrations and
+references, Tables 7.1-7.6, the shipped results, and the app's page (AppTest)."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from streamlit.testing.v1 import AppTest
+
+from ifo.envs import get_env
+from ifo.experts import check_level, level_info, load_expert
+from ifo.experts.train import LEVEL_TARGETS, parse_levels, select_levels
+from ifo.reproduce import TABLES, reproduce
+from ifo.reproduce import chapter7 as ch7
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = "pages/resilience.py"
+
+
+# ----------------------------------------------------------------------------- choosing the levels
+def test_a_level_keeps_the_check_that_meets_its_threshold_most_closely():
+    checks = [{"aer": a} for a in (-186.6, -164.7, -132.8, -130.9, -136.1, -158.9, -149.1, -148.2, -111.8, -99.9)]
+    chosen = select_levels(checks, {2: -129.0, 3: -137.0, 4: -149.0, 5: -156.0}, tolerance=5.0)
+    picked = {level: checks[k]["aer"] for level, k in chosen.items()}
+    # -136.1 and -148.2 meet their thresholds within 5; for -129 the lowest check above is -111.8 (18 away):
+    # the closest one (-130.9, 1.9 below) is kept instead; likewise -158.9 for -156
+    assert picked == {2: -130.9, 3: -136.1, 4: -148.2, 5: -158.9}
+    assert select_levels(checks, {2: -129.0}, tolerance=100.0) == {2: 8}  # meets the threshold if near enough
+    assert select_levels([], {2: 1.0}) == {}
+
+
+def test_level_arguments_are_checked():
+    assert parse_levels("3") == [3] and parse_levels("2-5") == [2, 3, 4, 5] and parse_levels("4,2") == [2, 4]
+    assert parse_levels("all") == [1, 2, 3, 4, 5]
+    for bad in ("0", "6", "x", "2-9"):
+        with pytest.raises(ValueError):
+            parse_levels(bad)
+    with pytest.raises(ValueError):
+        check_level(True)
+    with pytest.raises(ValueError, match="one expert"):
+        load_expert("maze5", level=2)
+
+
+# ----------------------------------------------------------------------------- the shipped levels
+SHIPPED_LEVELS = [env for env in ch7.ENVS_7 if all(level_info(env, k) for k in (1, 2, 3, 4, 5))]
+
+
+def test_levels_are_shipped_for_cartpole_and_mountaincar_at_least():
+    assert {"cartpole", "mountaincar"} <= set(SHIPPED_LEVELS)
+
+
+@pytest.mark.parametrize("env", SHIPPED_LEVELS)
+def test_the_shipped_levels_match_the_thesis_and_get_worse_level_by_level(env):
+    from ifo.experts.train import LEVEL_TOLERANCE
+
+    infos = [level_info(env, k) for k in (1, 2, 3, 4, 5)]
+    aers = [i["aer"] for i in infos]
+    assert aers == sorted(aers, reverse=True)  # Expert¹ is the best, Expert⁵ the worst
+    span = abs(LEVEL_TARGETS[env][0] - get_env(env).references()["random_aer"])
+    targets = LEVEL_TARGETS[env]
+    for k, info in enumerate(infos[1:], start=2):  # level 1 is the shipped expert, not chosen by this rule
+        # each level is nearer its own Table 7.1 threshold than any other level's ...
+        nearest = min(range(5), key=lambda j: abs(info["aer"] - targets[j]))
+        assert nearest == k - 1, (k, info["aer"])
+        # ... and within twice the selection tolerance (LunarLander is checked every 16,384 steps and moves fast:
+        # its level 3 lands 20.1 above 98 against a tolerance of 19.9; docs/CHOICES.md says so)
+        assert abs(info["aer"] - targets[k - 1]) <= 2 * LEVEL_TOLERANCE * span + 1e-9, (k, info["aer"])
+    for k in (1, 2, 3, 4, 5):
+        assert (ROOT / "assets" / "experts" / f"{env}-level{k}.npz").exists()
+        assert (ROOT / "assets" / "demos" / (f"{env}.npz" if k == 1 else f"{env}-level{k}.npz")).exists()
+    expert = load_expert(env, level=5)  # a level's weights reproduce its AER on the evaluation seeds
+    from ifo.experts.train import _reference_aer
+
+    assert _reference_aer(get_env(env), expert).mean() == pytest.approx(infos[4]["aer"], abs=1e-3)
+
+
+def test_level_demonstrations_load_with_their_actions_and_their_reference():
+    from ifo.data.demos import DemoError
+    from ifo.data.shipped import level_demos_path, level_references, load_shipped_demonstrations
+
+    spec = get_env("cartpole")
+    demos = load_shipped_demonstrations(spec, level=3)
+    info = level_info(spec, 3)
+    assert demos.n_episodes == info["demos_episodes"] == 100
+    assert float(np.mean(demos.episode_returns)) == pytest.approx(info["demos_mean_return"], abs=1e-3)
+    assert demos.hidden_actions is not None and len(demos.hidden_actions) == len(demos.transitions)
+    assert level_demos_path(spec, 3).name == "cartpole-level3.npz" and level_demos_path(spec, 1).name == "cartpole.npz"
+    assert level_references(spec, 3)["expert_aer"] == info["aer"]
+    assert level_references(spec, 1)["expert_aer"] == spec.references()["expert_aer"]
+    with pytest.raises(DemoError, match="one expert"):
+        load_shipped_demonstrations(get_env("maze5"), level=2)
+
+
+def test_a_level_run_measures_performance_against_that_expert():
+    from ifo.config import RunConfig
+
+    cfg = RunConfig.from_dict({"env": "cartpole", "method": "bc", "iterations": 1, "eval_episodes": 5,
+                               "expert_episodes": 3, "expert_level": 4})
+    run = ch7.level_run(cfg)
+    assert run.references["expert"] == level_info("cartpole", 4)["aer"]
+    assert run.demos.n_episodes == 3 and np.mean(run.demos.episode_returns) < 400  # Expert⁴'s, not Expert¹'s
+    ev = run.step()["evaluation"]
+    assert ev["performance"] == pytest.approx(ch7.performance_against(ev["aer"], "cartpole", 4))
+    assert ev["expert_reference"] == level_info("cartpole", 4)["aer"]
+
+
+# ----------------------------------------------------------------------------- the tables
+def test_table_7_1_shows_each_level_beside_the_thesis_without_training():
+    text = reproduce("7.1", seeds=3, envs=["cartpole"], log=lambda m: None, progress=False)
+    lines = [line for line in text.splitlines() if line.startswith("| Expert")]
+    assert len(lines) == 5  # one row per level: a reference row runs once, whatever the seeds
+    assert f"| {level_info('cartpole', 2)['aer']:.3f} | 435.000 |" in lines[1]
+    assert "| 70.51 |" in lines[1]  # the thesis's sd
+
+
+def test_tables_7_2_to_7_6_hold_the_four_methods_and_the_thesis_numbers():
+    for level in (1, 2, 3, 4, 5):
+        table = TABLES[f"7.{level + 1}"]
+        assert [r.label for r in table.rows] == ["Random", ch7.expert_label(level), "BC", "GAIL", "ILPO", "IUPE"]
+        assert table.settings["expert_level"] == level and table.envs == ch7.ENVS_7
+    assert TABLES["7.6"].thesis["GAIL"]["cartpole"] == (5.11, 484.22, 40.29, 0.31)
+    assert TABLES["7.5"].thesis["IUPE"]["mountaincar"] == (0.8, -161.05, 20.11, 0.51)
+    assert ch7.thesis_curves("mountaincar", ["IUPE"])["IUPE"][0] == (-99, -166.97)
+    titles = [c.title for c in TABLES["7.3"].columns]
+    assert "trajectory fidelity (0 = the expert's states)" in titles and "P against Expert¹" in titles
+
+
+def _store_rows():
+    """Rows as the sweep store keeps them, for two levels of CartPole."""
+    rows = []
+    for level, expert in ((1, 500.0), (4, 228.0)):
+        table = f"7.{level + 1}"
+        rows.append({"key": f"r{level}", "status": "done", "spec": {"table": table, "row": "Random", "env": "cartpole",
+                                                                     "seed": 0, "settings": {"expert_level": level}},
+                     "result": {"aer": 20.0, "performance": 0.0}})
+        rows.append({"key": f"e{level}", "status": "done", "spec": {"table": table, "row": ch7.expert_label(level),
+                                                                     "env": "cartpole", "seed": 0,
+                                                                     "settings": {"expert_level": level}},
+                     "result": {"aer": expert, "performance": 1.0, "expert_aer": expert, "level": level}})
+        for method, aer in (("BC", expert - 20), ("IUPE", 480.0)):
+            for seed in (0, 1):
+                rows.append({"key": f"{method}{level}{seed}", "status": "done",
+                             "spec": {"table": table, "row": method, "env": "cartpole", "seed": seed, "iterations": 5,
+                                      "settings": {"expert_level": level}},
+                             "result": {"aer": aer + seed, "performance": (aer - 20) / (expert - 20),
+                                        "performance_expert1": (aer - 20) / 480, "fidelity": 0.1 * level,
+                                        "expert_aer": expert, "level": level, "seconds": 3.0}})
+    rows.append({"key": "bad", "status": "failed", "spec": {"table": "7.2", "row": "BC", "env": "cartpole", "seed": 9},
+                 "error": "x"})
+    return rows
+
+
+def test_results_from_the_store_feed_the_figure_and_the_page_tables(tmp_path):
+    from ifo import figures
+
+    results = ch7.results_from_rows(_store_rows())
+    assert len(results) == 12  # the failure is left out
+    fig = figures.resilience_curves(results, "cartpole")
+    assert [t.name for t in fig.data] == ["expert", "BC", "IUPE"]
+    assert list(fig.data[1].x) == [228.0, 500.0] and list(fig.data[1].y) == pytest.approx([208.5, 480.5])
+    rows = ch7.summary_rows(results, "cartpole", ["BC", "IUPE", "Expert⁴"])
+    iupe4 = next(r for r in rows if r["method"] == "IUPE" and r["expert"] == "Expert⁴")
+    assert iupe4["AER (thesis)"] == "357.6" and iupe4["trajectory fidelity (ours)"] == "0.400 ± 0.000"
+    assert iupe4["P (thesis)"] == "1.840"
+    written = ch7.ship_results(_store_rows(), tmp_path)
+    assert written == {"cartpole": 12}
+    assert len(ch7.results_from_rows(json.loads(line) for line in (tmp_path / "cartpole.jsonl").read_text().splitlines())) == 12
+
+
+def test_a_live_cell_is_a_plain_run_config_on_that_levels_demonstrations():
+    cfg = ch7.live_config("cartpole", "ilpo", 3, seed=2, iterations=4, overrides={"pre_size": 2000, "nope": 1})
+    assert cfg.expert_level == 3 and cfg.demos.endswith("cartpole-level3.npz") and cfg.seed == 2
+    assert cfg.learner.pre_size == 2000 and cfg.iterations == 4
+    assert ch7.live_config("cartpole", "bc", 1).demos is None
+    m = ch7.live_metrics([{"iteration": 1, "evaluation": {"aer": 228.0, "fidelity": 0.3}}], "cartpole", 4)
+    assert m["performance"] == pytest.approx(ch7.performance_against(228.0, "cartpole", 4))
+    assert ch7.live_metrics([], "cartpole", 4) is None
+
+
+# ----------------------------------------------------------------------------- the page
+@pytest.fixture
+def app_env(monkeypatch, tmp_path):
+    monkeypatch.setenv("IFO_LAB_FAST", "1")
+    monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
+    return tmp_path
+
+
+def open_page(user: str) -> AppTest:
+    at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+    at.query_params["user"] = user
+    at.run()
+    at.switch_page(PAGE).run()
+    assert not at.exception, at.exception
+    return at
+
+
+def frame(at: AppTest, column: str):
+    """The dataframe (AppTest gives dataframes no key) that has `column`."""
+    return next(d.value for d in at.dataframe if column in d.value.columns)
+
+
+def chart_names(at: AppTest, key: str) -> list[str]:
+    chart = next(c for c in at.get("plotly_chart") if c.key == key)
+    return [t.get("name") for t in json.loads(chart.proto.spec)["data"]]
+
+
+def test_the_page_draws_fig_7_1_with_fidelity_beside_it(app_env, monkeypatch):
+    path = app_env / "cartpole.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in _store_rows()))
+    monkeypatch.setattr(ch7, "shipped_results_path", lambda env: path if env == "cartpole" else app_env / "none.jsonl")
+    at = open_page("resiltest01")
+    assert at.title[0].value == "Resilience to sub-optimal experts"
+    assert chart_names(at, "resilience.aer") == ["expert", "BC", "IUPE"]
+    assert chart_names(at, "resilience.other") == ["BC", "IUPE"]  # fidelity by default
+    table = frame(at, "P (ours)")
+    assert {"P (ours)", "P against Expert¹ (ours)", "trajectory fidelity (ours)"} <= set(table.columns)
+    at.toggle(key="resilience.thesis").set_value(True).run()
+    assert "BC (thesis)" in chart_names(at, "resilience.aer")
+    at.multiselect(key="resilience.methods").set_value(["IUPE"]).run()
+    assert chart_names(at, "resilience.aer")[1] == "IUPE"
+    at.radio(key="resilience.metric").set_value("performance").run()
+    assert not at.exception
+    from ifo.export import find_chromium
+
+    if find_chromium():  # SVG, PNG and PDF of both figures, drawn in the slide theme when clicked
+        keys = {b.proto.id for b in at.get("download_button")}
+        assert {k for k in keys if "resilience" in k} and len(at.get("download_button")) == 6
+    at.selectbox(key="resilience.env").set_value("acrobot").run()
+    assert any("No shipped results for Acrobot" in i.value for i in at.info)
+
+
+def test_the_page_shows_the_shipped_results_and_the_expert_levels(app_env):
+    at = open_page("resiltest02")
+    assert not at.exception
+    assert "BC" in chart_names(at, "resilience.aer")  # assets/resilience/cartpole.jsonl
+    levels = frame(at, "checkpoint (training steps)")
+    assert list(levels["expert"]) == ["Expert¹", "Expert²", "Expert³", "Expert⁴", "Expert⁵"]
+    assert levels["AER (thesis)"][1] == "435.0 ± 70.51"
+
+
+def test_a_cell_queued_from_the_page_trains_on_that_experts_demonstrations(app_env):
+    from ifo.ui.queue import get_queue
+
+    user = "resiltest03"
+    at = open_page(user)
+    at.selectbox(key="resilience.live.method").set_value("BC")
+    at.selectbox(key="resilience.live.level").set_value(5)
+    at.number_input(key="resilience.live.iterations").set_value(1)
+    at.button(key="resilience.live.queue").click().run()
+    assert not at.exception and not at.error
+    assert any("Queued BC on Expert⁵" in s.value for s in at.success)
+    job = get_queue().jobs(user)[0]
+    assert job.config.expert_level == 5 and job.config.demos.endswith("cartpole-level5.npz")
+    assert job.thesis == (1.46, 155.96)
+    assert get_queue().wait_idle(240)
+    at.run()
+    assert not at.exception
+    live = frame(at, "cell")
+    assert live["state"][0] == "finished" and live["AER"][0] != "—" and live["trajectory fidelity"][0] != "—"
+    aer = float(live["AER"][0])
+    assert float(live["P (against this expert)"][0]) == pytest.approx(ch7.performance_against(aer, "cartpole", 5),
+                                                                      abs=1e-3)
+
+
+def test_the_experts_command_takes_a_level(capsys):
+    from ifo.cli import main
+
+    assert main(["experts", "evaluate", "--env", "cartpole", "--level", "2,5", "--episodes", "5", "--json"]) == 0
+    out = [json.loads(line) for line in capsys.readouterr().out.strip().splitlines()]
+    assert [o["level"] for o in out] == [2, 5] and out[0]["aer"] > out[1]["aer"]
+    assert main(["experts", "demos", "--env", "maze5", "--level", "3"]) == 2
+    assert "one expert" in capsys.readouterr().err
+    assert main(["experts", "train", "--env", "cartpole", "--level", "9"]) == 2
+
+
+def test_the_resilience_command_draws_fig_7_1_into_the_figures_folder(monkeypatch, tmp_path):
+    """`bench resilience --figures DIR` hands DIR to the study, which draws Fig 7.1 (AER and fidelity) there
+    from the store's rows: SVG with a Chromium, else self-contained HTML."""
+    from ifo.cli import main
+    from ifo.export import find_chromium
+
+    seen = {}
+    monkeypatch.setattr(ch7, "resilience_study", lambda *a, **k: seen.update(k) or "(tables)")
+    assert main(["bench", "resilience", "--envs", "cartpole", "--local", "--figures", str(tmp_path / "figs")]) == 0
+    assert seen["figures_dir"] == str(tmp_path / "figs")
+
+    paths = ch7.write_figures(ch7.results_from_rows(_store_rows()), ["cartpole"], tmp_path / "figs", log=lambda m: None)
+    suffix = ".svg" if find_chromium() else ".html"
+    assert [p.name for p in paths] == [f"fig-7-1-cartpole{suffix}", f"fig-7-1-cartpole-fidelity{suffix}"]
+    body = paths[0].read_text()
+    assert "IUPE" in body and "BC" in body  # the methods' lines, by name
