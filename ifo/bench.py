@@ -191,3 +191,107 @@ def vanishing_table(seeds: int = 10, log=lambda msg: print(msg, file=sys.stderr)
               f"{np.mean(finals['iupe']):.1f}. Settings: {VANISHING}, other values CartPole's defaults; "
               "label share = the largest share of the expert's pairs the IDM gives one action."]
     return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- the sweep engine
+# Small trainings for measuring the engine (not the methods): BC and BCO(α) on CartPole, 2 iterations
+# with the quick sizes, alternating, one seed each.
+SWEEP_BENCH = dict(env="cartpole", iterations=2)
+
+
+def sweep_tasks(trainings: int) -> list:
+    from ifo.sweep import Task
+
+    tasks = []
+    for i in range(trainings):
+        method, seed = ("bc", "bco-alpha")[i % 2], i // 2
+        spec = {"bench": "sweep", "method": method, "seed": seed, **SWEEP_BENCH}
+        tasks.append(Task(spec, run_once, {"env": SWEEP_BENCH["env"], "method": method, "seed": seed,
+                                           "iterations": SWEEP_BENCH["iterations"], "quick": True}))
+    return tasks
+
+
+def sweep_child(trainings: int, store: str) -> None:
+    """The sweep the resume measurement starts in its own process (and kills)."""
+    from ifo.sweep import ResultStore, run_sweep
+
+    run_sweep(sweep_tasks(trainings), ResultStore(store), progress=False)
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below `pid` (Linux /proc), so a killed sweep's Ray workers go with it."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+        except (OSError, ValueError, IndexError):
+            continue
+    out, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child)
+    return out
+
+
+def sweep_table(trainings: int = 100, log=lambda msg: print(msg, file=sys.stderr)) -> str:
+    """The sweep engine measured: `trainings` small trainings one after another in this process, then on a
+    local Ray (throughput of each, and whether both gave the same numbers); then the Ray sweep started
+    in its own process, killed (SIGKILL, workers included) once half its rows are stored, and run again:
+    how many finished rows the rerun skipped and how many trainings the kill cost."""
+    import os
+    import signal
+    import subprocess
+    import tempfile
+
+    from ifo.sweep import ResultStore, run_sweep
+
+    tasks = sweep_tasks(trainings)
+    with tempfile.TemporaryDirectory(prefix="ifo-sweep-bench-") as tmp:
+        log(f"{trainings} trainings one after another in this process ...")
+        here, one_by_one = run_sweep(tasks, ResultStore(f"{tmp}/here"), local=True, desc="in-process")
+        log(one_by_one.line())
+        log(f"the same {trainings} on a local Ray ...")
+        on_ray, ray_report = run_sweep(tasks, ResultStore(f"{tmp}/ray"), desc="local Ray")
+        log(ray_report.line())
+        differ = sum(here[k]["result"]["aer"] != on_ray[k]["result"]["aer"] for k in here if k in on_ray)
+
+        store = f"{tmp}/killed"
+        child = subprocess.Popen([sys.executable, "-c", f"from ifo.bench import sweep_child; "
+                                  f"sweep_child({trainings}, {store!r})"], start_new_session=True,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            while len(ResultStore(store).done()) < trainings // 2:
+                if child.poll() is not None:
+                    raise RuntimeError("the sweep to be killed ended on its own before half its rows")
+                time.sleep(0.5)
+            for pid in [child.pid] + _descendants(child.pid):
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            child.wait(60)
+        finally:
+            if child.poll() is None:
+                child.kill()
+        kept = len(ResultStore(store).done())
+        log(f"killed with {kept} of {trainings} rows stored; resuming ...")
+        _, resumed = run_sweep(tasks, ResultStore(store), desc="resumed")
+        log(resumed.line())
+        rows = ResultStore(store).rows()
+        lost = resumed.done - (trainings - kept)  # > 0 only if the rerun redid stored rows
+        complete = len(ResultStore(store).done()) == trainings
+    return "\n".join([
+        "| how | trainings | seconds | trainings per hour |", "|---|---|---|---|",
+        f"| one after another, in process | {one_by_one.done} | {one_by_one.seconds:.0f} "
+        f"| {one_by_one.per_hour or 0:.0f} |",
+        f"| {ray_report.mode} | {ray_report.done} | {ray_report.seconds:.0f} (Ray start "
+        f"{ray_report.ray_start_seconds:.0f}) | {ray_report.per_hour or 0:.0f} |",
+        "",
+        f"Speed-up on Ray: {(ray_report.per_hour or 0) / (one_by_one.per_hour or 1):.2f}×. Results that differ "
+        f"between the two: {differ} of {len(here)} (same seed, same numbers). Killed after {kept} stored rows "
+        f"(SIGKILL of the driver and its Ray workers): the rerun skipped {resumed.skipped}, trained "
+        f"{resumed.done}, redid {max(lost, 0)} stored rows; {len(rows)} rows in the store, "
+        f"{'all' if complete else 'NOT all'} {trainings} trainings done. Trainings: {SWEEP_BENCH['iterations']} "
+        f"iterations of BC and BCO(α) on {SWEEP_BENCH['env']} with the quick sizes ({QUICK})."])

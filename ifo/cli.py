@@ -202,6 +202,12 @@ def cmd_bench(a: argparse.Namespace) -> int:
         text = resilience_study(a.envs.split(",") if a.envs else None, a.seeds, a.iterations, levels=levels,
                                 rows=[r.strip() for r in a.rows.split(",")] if a.rows else None,
                                 ship=a.ship, figures_dir=a.figures, **extra, **_sweep_options(a))
+    elif a.what == "sweep":
+        from ifo.bench import sweep_table
+
+        if not 2 <= a.trainings <= 10_000:
+            raise CliError(f"--trainings must be 2..10000, got {a.trainings}")
+        text = sweep_table(a.trainings)
     elif a.what == "vanishing":
         from ifo.bench import vanishing_table
 
@@ -289,12 +295,15 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_demos_check)
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
-    p.add_argument("what", nargs="?", choices=["baselines", "reproduce", "resilience", "speed", "export", "vanishing"],
+    p.add_argument("what", nargs="?",
+                   choices=["baselines", "reproduce", "resilience", "speed", "export", "vanishing", "sweep"],
                    default="baselines",
                    help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
                         "table; resilience: Tables 7.2-7.6 (Ch. 7) as one sweep; speed: seconds per iteration and "
                         "per phase; export: server-side figure export speed; "
-                        "vanishing: BCO(α) against IUPE on CartPole with a small I_pre")
+                        "vanishing: BCO(α) against IUPE on CartPole with a small I_pre; sweep: the sweep engine's "
+                        "throughput in process and on Ray, and a resume after a kill")
+    p.add_argument("--trainings", type=int, default=100, help="sweep: how many small trainings")
     from ifo.reproduce import TABLES
 
     p.add_argument("--table", choices=sorted(TABLES, key=lambda t: tuple(map(int, t.split(".")))),
@@ -307,9 +316,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--maze-eval-layouts", choices=["held-out", "demonstration"],
                    help="reproduce: evaluate mazes on held-out layouts (default) or on the demonstrations' layouts "
                         "(the thesis authors' protocol)")
-    p.add_argument("--deadlock-guard", type=parse_bool, metavar="BOOL",
+    p.add_argument("--deadlock-guard", type=parse_bool, metavar="BOOL", nargs="?", const=True,
                    help="reproduce: maze evaluation ends an episode on the 4th visit to a cell with return -1 "
-                        "(the thesis authors' evaluation; on unless false)")
+                        "(the thesis authors' evaluation; on unless false; the bare flag, as the older tables "
+                        "were made, means true)")
     p.add_argument("--expert-episodes", type=int,
                    help="reproduce: how many demonstrations every method gets (default: per env; the shipped "
                         "5×5 and 10×10 maze demonstrations hold 1,000, one per training layout)")

@@ -760,7 +760,8 @@ def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", 
         raise ValueError(f"metric must be one of {', '.join(RESILIENCE_METRICS)}, got {metric!r}")
     import numpy as np
 
-    title = f"{RESILIENCE_METRICS[metric]} against the expert's AER ({env})"
+    # the axis says what the metric means; the title stays short enough for half a page
+    title = f"{RESILIENCE_METRICS[metric].split(' (')[0]} against the expert's AER ({env})"
     mine = [r for r in results if r.get("env") == env and r.get("expert_aer") is not None]
     learners = [r for r in mine if r.get("method") != "Random" and not str(r.get("method", "")).startswith("Expert")]
     if not learners:

@@ -225,11 +225,27 @@ def choose(page, label: str, option: str, where=None) -> None:
     """Pick `option` in the select box labelled `label` (in the sidebar unless `where` says otherwise)."""
     from playwright.sync_api import expect
 
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     box = (where if where is not None else sidebar(page)).get_by_role("combobox", name=label)
     box.click()
-    page.get_by_role("option", name=option, exact=True).click()
+    choice = page.get_by_role("option", name=option, exact=True)
+    try:  # a click that lands while the page settles (a chart drawn, an expander opened) may not open the list
+        choice.wait_for(timeout=5_000)
+    except PlaywrightTimeout:
+        box.click()
+    choice.click()
     expect(box).to_have_value(option)
     wait_idle(page, LONG_MS)
+
+
+def type_number(page, label: str, value: int, where=None) -> None:
+    """Type a number into the number box labelled `label` (anywhere on the page unless `where` says) and
+    press Enter, as a person does; wait for the page to settle."""
+    box = (where if where is not None else page).get_by_role("spinbutton", name=label)
+    box.fill(str(value))
+    box.press("Enter")
+    wait_idle(page)
 
 
 def error_boxes(page):

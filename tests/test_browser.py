@@ -22,7 +22,7 @@ import pytest
 
 pytest.register_assert_rewrite("browser_support")
 from browser_support import (CHART, LONG_MS, MAIN, ROOT, choose, counter, download, error_boxes, go_by_sidebar,
-                             open_app, query, sidebar, step, user_of, wait_idle)  # noqa: E402
+                             open_app, query, sidebar, step, type_number, user_of, wait_idle)  # noqa: E402
 
 pytest_plugins = ["browser_support"]
 pytestmark = pytest.mark.browser
@@ -132,11 +132,8 @@ def test_open_an_example_run_and_continue_it(app, page, snap):
     expect(page.get_by_role("button", name="Step", exact=True)).to_be_disabled()
     expect(page.locator(CHART)).not_to_have_count(0)
 
-    iterations = sidebar(page).get_by_role("spinbutton", name="Iterations in the run")
-    iterations.fill("11")
-    iterations.press("Enter")
+    type_number(page, "Iterations in the run", 11, where=sidebar(page))
     expect(counter(page)).to_have_text("Iteration 10 of 11")
-    wait_idle(page)
     step(page, 11, 11)
     expect(error_boxes(page)).to_have_count(0)
     expect(page.locator("[data-testid='stAlertContentWarning']")).to_have_count(0)  # the autosave worked
@@ -293,10 +290,7 @@ def test_compare_two_methods(app, page):
     chosen = page.locator("[data-testid='stMultiSelect']").filter(has_text="Methods").first
     expect(chosen).to_contain_text("BCO(α)")
     expect(chosen).to_contain_text("IUPE")
-    iterations = page.get_by_role("spinbutton", name="Iterations per run")
-    iterations.fill("3")
-    iterations.press("Enter")
-    wait_idle(page)
+    type_number(page, "Iterations per run", 3)
     page.get_by_role("button", name="Queue these methods").click()
     expect(page.get_by_text("Queued 2 runs.")).to_be_visible()
     expect(page.get_by_text(re.compile(r"0 waiting or training, 2 ended"))).to_be_visible(timeout=2 * LONG_MS)
@@ -409,3 +403,31 @@ def test_a_lesson_from_the_landing_page(app, page):
     expect(sidebar(page).get_by_role("combobox", name="Method")).to_have_value("IUPE")
     step(page, 1, 5)
     expect(error_boxes(page)).to_have_count(0)
+
+
+# ----------------------------------------------------------------------------- 12. sub-optimal experts (Ch. 7)
+def test_the_resilience_page_draws_fig_7_1_and_runs_a_cell(app, page):
+    """By the sidebar to "Sub-optimal experts": Fig 7.1 from the shipped CartPole results with fidelity
+    beside it, its SVG download, the expert levels; then one cell (BC on Expert⁵, 1 iteration) queued
+    and finished on the page."""
+    open_app(page, app)
+    go_by_sidebar(page, "Sub-optimal experts")
+    expect(page.get_by_role("heading", name="Resilience to sub-optimal experts")).to_be_visible()
+    charts = page.locator(CHART)
+    expect(charts).to_have_count(2)  # AER against the expert's AER; fidelity beside it
+    expect(charts.first).to_contain_text("expert")
+    expect(charts.first).to_contain_text("IUPE")
+    page.get_by_text("The expert levels (Table 7.1)").click()
+    expect(page.get_by_text("Levels 2-5 are earlier checkpoints")).to_be_visible()
+
+    main = page.locator(MAIN)
+    expect(main.get_by_role("combobox", name="Method", exact=True)).to_have_value("BC")  # the first method
+    wait_idle(page)
+    choose(page, "Expert", "Expert⁵", where=main)
+    type_number(page, "Iterations", 1, where=main)
+    page.get_by_role("button", name="Queue this cell").click()
+    expect(page.get_by_text("Queued BC on Expert⁵")).to_be_visible()
+    expect(page.get_by_text(re.compile(r"0 waiting or training, 1 ended"))).to_be_visible(timeout=2 * LONG_MS)
+    expect(error_boxes(page)).to_have_count(0)
+    svg = download(page, page.locator("[data-testid='stDownloadButton']").filter(has_text="SVG").first)
+    assert is_svg(svg) and b"IUPE" in svg, svg[:200]  # Fig 7.1 for slides

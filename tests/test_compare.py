@@ -59,7 +59,7 @@ def test_summary_rows_mean_and_sd_over_seeds():
         {"group": "B", "records": [], "total": 3, "state": "queued", "thesis": None},
     ]
     a, b = cp.summary_rows(entries)
-    assert a["P (ours)"] == "0.400 ± 0.200" and a["AER (ours)"] == "200.000 ± 100.000"
+    assert a["P (ours)"] == "0.400 ± 0.283" and a["AER (ours)"] == "200.000 ± 141.421"  # the sample sd (n - 1)
     assert a["P (thesis)"] == "1.000" and a["AER (thesis)"] == "500.000" and a["seeds"] == "2/2 finished"
     assert b["P (ours)"] == "—" and b["P (thesis)"] == "—" and b["seeds"] == "0/1 finished"
 

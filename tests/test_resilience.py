@@ -109,7 +109,7 @@ def test_table_7_1_shows_each_level_beside_the_thesis_without_training():
     text = reproduce("7.1", seeds=3, envs=["cartpole"], log=lambda m: None, progress=False)
     lines = [line for line in text.splitlines() if line.startswith("| Expert")]
     assert len(lines) == 5  # one row per level: a reference row runs once, whatever the seeds
-    assert f"| {level_info('cartpole', 2)['aer']:.3f} | 435.000 |" in lines[1]
+    assert f"| {level_info('cartpole', 2)['aer']:.3f} | — | 435.000 |" in lines[1]  # one run: no interval
     assert "| 70.51 |" in lines[1]  # the thesis's sd
 
 

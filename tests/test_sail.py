@@ -303,11 +303,11 @@ def test_the_table_printer_shows_further_columns_and_leaves_other_tables_as_they
     assert "D's accuracy (%) (ours) | D's accuracy (%) (thesis) | G's loss (ours) | G's loss (thesis)" in t93[2]
     assert "| 50.000 ± 0.000 | 50.130 ± 3.210 | 0.00123 ± 0 | 0.8685 |" in t93[4]
     t92 = reproduce.reproduce("9.2", seeds=2, envs=["mountaincar"], **quiet)
-    assert "| 100.000 | -114.400 | 101.000 | -103.600 | 0.500 | 4.210 |" in t92  # 25 trajectories: min, max, sd
+    assert "| 100.000 | -114.400 | 101.000 | -103.600 | 0.707 | 4.210 |" in t92  # 25 trajectories: min, max, sample sd
     t61 = reproduce.reproduce("6.1", seeds=1, envs=["cartpole"], **quiet).splitlines()
-    assert t61[2] == ("| row | environment | P (ours) | P (thesis) | AER (ours) | AER (thesis) | AER sampled actions "
-                      "(ours) | seconds per run | target |")
-    assert all(line.count("|") == 10 for line in t61 if line.startswith("|"))
+    assert t61[2] == ("| row | environment | P (ours) | P (thesis) | AER (ours) | AER 95 % interval (ours) "
+                      "| AER (thesis) | AER sampled actions (ours) | seconds per run | target |")
+    assert all(line.count("|") == 11 for line in t61 if line.startswith("|"))
 
 
 # ----------------------------------------------------------------------------- the app

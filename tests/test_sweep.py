@@ -204,3 +204,30 @@ def test_the_store_keeps_what_table_8_3_needs_from_the_records():
     slim = _slim(result)
     assert "records" not in slim and samples_to_best(result) == samples_to_best(slim) == 350
     assert samples_to_best(_slim({"aer": 1.0, "records": [{"iteration": 1, "evaluation": {"aer": 1.0}}]})) is None
+
+
+def test_the_sweep_benchmark_refuses_an_impossible_size(capsys):
+    from ifo.cli import main
+
+    assert main(["bench", "sweep", "--trainings", "1"]) == 2
+    assert "--trainings must be 2..10000" in capsys.readouterr().err
+
+
+def test_the_sweep_benchmark_kills_the_whole_process_tree():
+    """The resume measurement kills the sweep's driver and every process below it (its Ray workers)."""
+    from ifo.bench import _descendants
+
+    parent = subprocess.Popen([sys.executable, "-c", "import subprocess, sys, time; "
+                               "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)']); time.sleep(60)"])
+    try:
+        deadline = time.monotonic() + 30
+        while not _descendants(parent.pid):
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        [child] = _descendants(parent.pid)
+        assert child != parent.pid and Path(f"/proc/{child}").exists()
+    finally:
+        for pid in _descendants(parent.pid):
+            os.kill(pid, signal.SIGKILL)
+        parent.kill()
+        parent.wait()

@@ -45,7 +45,9 @@ _TABLES = {
                  _by_env(_T61),
                  targets={("IUPE", "cartpole"): ("aer", 500.0), ("IUPE", "acrobot"): ("aer", -90.0),
                           ("IUPE", "mountaincar"): ("aer", -140.0), ("IUPE", "maze3"): ("performance", 0.95),
-                          ("IUPE", "maze5"): ("performance", 0.95), ("IUPE", "maze10"): ("performance", 0.8)}),
+                          ("IUPE", "maze5"): ("performance", 0.95), ("IUPE", "maze10"): ("performance", 0.8)},
+                 thesis_notes={("ILPO", "mountaincar", "aer"): "ILPO's MountainCar AER −167 is a fill-in: Table 6.1 "
+                                "does not print it; it comes from Table 5.1 (and Sec 6.3's text)."}),
     "5.2": Table("Table 5.2: ABCO ablation on the 5×5 maze", ("maze5",), (
         _ablation("BCO(α)"), _ablation("BCO(α), appending I_s (Torabi et al.)", sampling="append"),
         _ablation("Attention", attention=True), _ablation("Partial Sampling", sampling="abco"), _ablation("Whole Sampling", sampling="abco-whole"),
@@ -54,7 +56,9 @@ _TABLES = {
         {"BCO(α)": {"maze5": (-0.112, -0.941)}, "Attention": {"maze5": (-0.415, -0.940)},
          "Partial Sampling": {"maze5": (0.717, 0.716)}, "Whole Sampling": {"maze5": (0.628, 0.676)},
          "ABCO (Attention + Partial Sampling)": {"maze5": (0.960, 0.932)},
-         "ABCO (Attention + Whole Sampling)": {"maze5": (0.759, 0.755)}}),
+         "ABCO (Attention + Whole Sampling)": {"maze5": (0.759, 0.755)}},
+        thesis_notes={("BCO(α)", "maze5", "aer"): "BCO's AER −0.941 on the 5×5 maze is likely a typo: it is Table "
+                       "5.1's 10×10 number; Table 5.1 gives BCO 0.104 on 5×5 (with the same P, −0.112)."}),
     "6.2": Table("Table 6.2: IUPE ablation on the 10×10 maze", ("maze10",), (
         _ablation("BCO(α)"), _ablation("BCO(α), appending I_s (Torabi et al.)", sampling="append"),
         _ablation("Attention", attention=True), _ablation("Sampling", sampling="iupe"),

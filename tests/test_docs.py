@@ -1,0 +1,74 @@
+"""The documents say which command made each table and figure: those commands must still be commands.
+
+Every `Made with `python -m ifo ...`` in docs/ and README.md is parsed by the command line's own parser
+(nothing is trained), and its --table, --envs and --rows must name a table, environments and rows that
+exist; a renamed option or row fails here, not on a reader's machine. The tables' statistics (sample sd,
+95 % interval, verdicts) are tested here too, since the documents quote them.
+"""
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from ifo.cli import build_parser
+from ifo.reproduce import TABLES, interval95, reproduce, verdict
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCUMENTS = sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
+MADE_WITH = re.compile(r"[Mm]ade with `(python -m ifo [^`]+)`")
+
+
+def documented_commands() -> list[tuple[str, str]]:
+    found = []
+    for path in DOCUMENTS:
+        for command in MADE_WITH.findall(path.read_text(encoding="utf-8")):
+            found.append((str(path.relative_to(ROOT)), command))
+    return found
+
+
+def test_the_documents_name_the_commands_that_made_them():
+    assert len(documented_commands()) >= 10
+    made = {Path(c.split("--out ")[1].split()[0]).name for _, c in documented_commands() if "--out " in c}
+    for table in sorted((ROOT / "docs" / "reproduction").glob("*.md")):  # every table file says how it was made
+        assert table.name in made, f"{table.name} does not end with the command that made it"
+
+
+@pytest.mark.parametrize("where,command", documented_commands(), ids=lambda v: v if "/" in v or ".md" in v else None)
+def test_a_documented_command_still_parses_and_names_what_exists(where, command):
+    argv = shlex.split(command)[3:]  # after "python -m ifo"
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # argparse's way to refuse
+        pytest.fail(f"{where}: `{command}` no longer parses (exit {exc.code})")
+    table_id = getattr(args, "table", None)
+    if table_id is None:
+        return
+    assert table_id in TABLES, f"{where}: no table {table_id}"
+    table = TABLES[table_id]
+    for env in (args.envs.split(",") if getattr(args, "envs", None) else []):
+        assert env in table.envs, f"{where}: table {table_id} has no column {env}"
+    labels = {r.label for r in table.rows}
+    for row in ([r.strip() for r in args.rows.split(",")] if getattr(args, "rows", None) else []):
+        assert row in labels, f"{where}: table {table_id} has no row {row}"
+
+
+def test_the_interval_and_the_verdict_claim_only_what_the_seeds_support():
+    low, high = interval95([1.0, 2.0, 3.0])
+    assert (low, high) == pytest.approx((2.0 - 2.4842, 2.0 + 2.4842), abs=1e-3)  # t(0.975, 2) · 1 / √3
+    assert interval95([5.0]) is None and interval95([4.0, 4.0]) == (4.0, 4.0)
+    assert verdict([500.0] * 5, 475) == "met"
+    assert verdict([480.0, 470.0, 500.0], 475).startswith("met on average")  # the mean clears it, the seeds do not
+    assert verdict([400.0, 500.0], 475) == "MISSED"
+    assert verdict([490.0], 475) == "met (one seed)"
+
+
+def test_a_thesis_cell_that_is_a_fill_in_is_marked_and_explained(monkeypatch):
+    import ifo.reproduce as reproduce_mod
+
+    monkeypatch.setattr(reproduce_mod, "run_row", lambda *a, **k: {"aer": -100.0, "performance": 1.0, "seconds": 1.0})
+    text = reproduce("6.1", seeds=2, envs=["mountaincar"], rows=["ILPO"], log=lambda m: None)
+    row = next(line for line in text.splitlines() if line.startswith("| ILPO"))
+    assert "| -167.000 (note 1) |" in row
+    assert "- Note 1: ILPO's MountainCar AER −167 is a fill-in" in text
+    assert "| -100.000 ± 0.000 | [-100.000, -100.000] |" in row
