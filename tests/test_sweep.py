@@ -170,6 +170,9 @@ def test_reproduce_renders_its_table_from_the_store_and_resumes_from_it(tmp_path
     strip = lambda text: [line.rsplit("|", 3)[0] for line in text.splitlines()]  # noqa: E731 - seconds aside
     assert strip(first) == strip(again)
     assert "| BC | cartpole |" in first and first.startswith("## Table 6.1")
+    # rendering one row from a store that holds more: nothing counted as failed
+    only_bc = reproduce("6.1", seeds=1, envs=["cartpole"], iterations=1, rows=["BC"], **{**kw, "train": False})
+    assert "failed" not in only_bc and "| BC | cartpole |" in only_bc
 
 
 def test_the_command_line_passes_the_sweep_options(monkeypatch, capsys, tmp_path):

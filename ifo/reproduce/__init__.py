@@ -288,7 +288,7 @@ def train_rows(table: Table, chosen: list[Row], env_names: list[str], seeds: int
     for (label, env, seed), task in tasks.items():
         if task.key in done:
             results.setdefault((label, env), []).append(done[task.key]["result"])
-    return results, len(tasks) - len(done)
+    return results, sum(task.key not in done for task in tasks.values())
 
 
 def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iterations: int | None = None,
