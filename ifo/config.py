@@ -91,7 +91,7 @@ class RunConfig:
         values = {}
         for s in specs(RunConfig):
             v = getattr(self, s.name)
-            for source in (method.run_defaults, ENV_DEFAULTS[spec.name]):
+            for source in (method.run_defaults, ENV_DEFAULTS[spec.settings_name]):
                 if v is None:
                     v = source.get(s.name)
             values[s.name] = v

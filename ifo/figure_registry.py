@@ -28,13 +28,14 @@ class EnvView:
     feature_names: tuple[str, ...] = ()
     maze_size: int | None = None
     image_size: int | None = None
+    maze_loops: float = 0.0  # the maze world: 0 perfect mazes, 1 braided
 
     @classmethod
     def of(cls, config: dict) -> "EnvView":
         spec = get_env(str(config.get("env", "")))
         images = spec.is_maze and config.get("obs_mode", "image") == "image"
         return cls(tuple(spec.action_names), tuple(spec.feature_names), spec.kwargs.get("size") if images else None,
-                   int(config.get("image_size", 32)) if images else None)
+                   int(config.get("image_size", 32)) if images else None, float(spec.kwargs.get("loops", 0.0)))
 
 
 Draw = Callable[[Sequence[dict], EnvView, "int | None", str], go.Figure]
@@ -78,16 +79,16 @@ def _upto(records: Sequence[dict], it: int | None) -> list[dict]:
 
 
 @lru_cache(maxsize=8)
-def _probe_frames(size: int, image_size: int) -> np.ndarray:
+def _probe_frames(size: int, image_size: int, loops: float) -> np.ndarray:
     from ifo.probes import maze_probe_frames
 
-    frames = maze_probe_frames(size, image_size)
+    frames = maze_probe_frames(size, image_size, loops=loops)
     frames.setflags(write=False)
     return frames
 
 
 def _grad_cam(records, env: EnvView, it, theme):
-    frames = _probe_frames(env.maze_size, env.image_size) if env.maze_size else None
+    frames = _probe_frames(env.maze_size, env.image_size, env.maze_loops) if env.maze_size else None
     return figures.grad_cam_panel(records, iteration=it, theme=theme, frames=frames, action_names=env.action_names)
 
 

@@ -40,7 +40,7 @@ def _path_cells(layout: np.ndarray) -> list[tuple[int, int]]:
     return cells
 
 
-def maze_probes(size: int, count: int = 6) -> list[dict]:
+def maze_probes(size: int, count: int = 6, loops: float = 0.0) -> list[dict]:
     """Where the probe frames come from: eval layouts, cells on their shortest paths.
 
     Probe k uses eval layout k (cycling when the pool is smaller than `count`) and wants a
@@ -52,7 +52,7 @@ def maze_probes(size: int, count: int = 6) -> list[dict]:
     size, count = int(size), int(count)
     if count < 1:
         raise ValueError(f"count must be at least 1, got {count}")
-    pool = layout_pool(size, "eval")
+    pool = layout_pool(size, "eval", loops)
     used: set[tuple[int, int, int]] = set()
     probes: list[dict] = []
     attempt = 0
@@ -76,15 +76,15 @@ def maze_probes(size: int, count: int = 6) -> list[dict]:
     return probes
 
 
-def maze_probe_frames(size: int, image_size: int, count: int = 6) -> np.ndarray:
+def maze_probe_frames(size: int, image_size: int, count: int = 6, loops: float = 0.0) -> np.ndarray:
     """The fixed probe set as images: uint8 (count, image_size, image_size, 3).
 
     The same frames every call (and so every iteration), rendered exactly as MazeEnv
     renders observations; see `maze_probes` for where they are taken.
     """
-    pool = layout_pool(int(size), "eval")
+    pool = layout_pool(int(size), "eval", loops)
     return np.stack([render_maze(pool[p["layout_index"]], tuple(p["position"]), int(image_size))
-                     for p in maze_probes(size, count)])
+                     for p in maze_probes(size, count, loops)])
 
 
 # --------------------------------------------------------------------------- Grad-CAM
@@ -179,12 +179,14 @@ def grad_cam_maps(policy: nn.Module, frames: np.ndarray, target_layer: nn.Module
     }
 
 
-def grad_cam_probe_record(policy: nn.Module, size: int, image_size: int, count: int = 6) -> dict:
-    """record["attention"]["grad_cam"] for a maze run: the maps on the fixed probe frames,
-    plus where the probes are (so the app can redraw the frames with `maze_probe_frames`)."""
-    out = grad_cam_maps(policy, maze_probe_frames(size, image_size, count))
-    out["probes"] = maze_probes(size, count)
-    out["size"], out["image_size"] = int(size), int(image_size)
+def grad_cam_probe_record(policy: nn.Module, size: int, image_size: int, count: int = 6,
+                          loops: float = 0.0) -> dict:
+    """record["attention"]["grad_cam"] for a maze run: the maps on the fixed probe frames (of the
+    run's maze world: perfect, or braided with `loops`), plus where the probes are (so the app can
+    redraw the frames with `maze_probe_frames`)."""
+    out = grad_cam_maps(policy, maze_probe_frames(size, image_size, count, loops))
+    out["probes"] = maze_probes(size, count, loops)
+    out["size"], out["image_size"], out["loops"] = int(size), int(image_size), float(loops)
     return out
 
 

@@ -387,3 +387,52 @@ def test_a_fixed_world_of_the_first_n_layouts():
     assert seen <= set(range(100))
     with pytest.raises(ValueError, match="n_layouts"):
         MazeEnv(5, n_layouts=0)
+
+
+# The braided world (mazes with loops)
+
+def passages(layout):
+    return int((layout[:-1] & BITS["S"] > 0).sum() + (layout[:, :-1] & BITS["E"] > 0).sum())
+
+
+@pytest.mark.parametrize("size", SIZES)
+def test_braided_mazes_have_loops_and_no_dead_ends_and_the_expert_still_walks_a_shortest_path(size):
+    spec = get_env(f"maze{size}-loops")
+    assert spec.is_maze and spec.kwargs == {"size": size, "loops": 1.0} and spec.settings_name == f"maze{size}"
+    pool = layout_pool(size, "eval", 1.0)
+    for layout in pool[:20]:
+        open_sides = [bin(int(x)).count("1") for x in layout.ravel()]
+        assert min(open_sides) >= 2  # no dead end left
+        assert passages(layout) > size * size - 1  # more passages than a tree: loops
+        assert np.array_equal(layout[1:] & BITS["N"] > 0, layout[:-1] & BITS["S"] > 0)  # open from both sides
+        assert not (layout[0] & BITS["N"]).any() and not (layout[:, -1] & BITS["E"]).any()
+        env = MazeEnv(size=size, split="eval", obs_mode="vector", loops=1.0)
+        obs, _ = env.reset(options={"layout": layout})
+        actions = shortest_path_actions(layout)
+        assert len(actions) == bfs_distance(layout)  # BFS on the graph with loops
+        _, _, flags = run(env, actions)
+        assert flags[-1] == (True, False)
+    # braiding draws from its own stream: the perfect maze of a seed is unchanged, and loops=0 is it
+    assert np.array_equal(generate_layout(size, 3, 0.0), generate_layout(size, 3))
+    assert not set(map(bytes, layout_pool(size, "train", 1.0))) & set(map(bytes, pool))  # train and eval disjoint
+
+
+def test_the_braided_world_is_closer_to_the_thesis_references():
+    """The thesis's expert returns 0.966 / 0.971 / 0.982 (3×3 / 5×5 / 10×10); a random walk finds the goal
+    more often with loops than in a perfect maze."""
+    for size, thesis_expert in ((3, 0.966), (5, 0.971), (10, 0.982)):
+        perfect, braided = get_env(f"maze{size}").references(), get_env(f"maze{size}-loops").references()
+        assert abs(braided["expert_aer"] - thesis_expert) < abs(perfect["expert_aer"] - thesis_expert) + 1e-9
+        assert braided["random_aer"] > perfect["random_aer"]
+
+
+def test_a_braided_maze_run_uses_its_own_demonstrations_and_the_perfect_twins_settings():
+    from ifo.config import RunConfig
+
+    cfg = RunConfig(env="maze5-loops", method="iupe").resolved()
+    twin = RunConfig(env="maze5", method="iupe").resolved()
+    assert cfg.learner == twin.learner and cfg.rollout_max_steps == twin.rollout_max_steps
+    from ifo.data.shipped import load_shipped_demonstrations
+
+    demos = load_shipped_demonstrations(get_env("maze5-loops"))
+    assert demos.n_episodes == 1000 and float(np.mean(demos.episode_returns)) == pytest.approx(0.970, abs=1e-3)

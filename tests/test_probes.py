@@ -205,3 +205,20 @@ def test_action_distance_curves():
     for empty in (figures.action_distance_curves([], ACTIONS),
                   figures.action_distance_curves([{"iteration": 1}], ACTIONS)):
         assert len(empty.data) == 0 and empty.layout.annotations
+
+
+def test_a_braided_maze_run_probes_its_own_world():
+    """The attention probes of a run in the braided world are frames of braided mazes (not of the perfect
+    twin's), and the page redraws the same frames from the record."""
+    from ifo.envs.maze import layout_pool
+    from ifo.figure_registry import EnvView
+
+    probes = maze_probes(5, loops=1.0)
+    pool = layout_pool(5, "eval", 1.0)
+    for p in probes:
+        layout = pool[p["layout_index"]]
+        assert min(bin(int(x)).count("1") for x in layout.ravel()) >= 2  # braided: no dead ends
+    braided, perfect = maze_probe_frames(5, 32, loops=1.0), maze_probe_frames(5, 32)
+    assert braided.shape == perfect.shape and not np.array_equal(braided, perfect)
+    view = EnvView.of({"env": "maze5-loops", "obs_mode": "image", "image_size": 32})
+    assert (view.maze_size, view.maze_loops) == (5, 1.0)

@@ -65,6 +65,12 @@ class EnvSpec:
     feature_names: tuple[str, ...] = ()  # names of the state variables (vector states)
     # two state variables to draw the policy over (Figs 8.2, 8.3): ((index, name, low, high), ...)
     policy_map_axes: tuple = ()
+    settings_from: str = ""  # another environment whose per-environment default settings this one shares
+
+    @property
+    def settings_name(self) -> str:
+        """The name per-environment defaults are looked up by (a braided maze takes its perfect twin's)."""
+        return self.settings_from or self.name
 
     @property
     def n_actions(self) -> int:
@@ -108,6 +114,11 @@ _CONTROL = [
 _MAZES = [
     EnvSpec(f"maze{n}", f"ifo/Maze{n}x{n}-v0", ("N", "S", "W", "E"), _maze_goal, kwargs={"size": n},
             is_maze=True, deterministic=True, thesis_name=f"Maze {n}x{n}")
+    for n in (3, 5, 10)
+] + [  # the same mazes braided (no dead ends: loops), closer to the world the thesis's references suggest
+    EnvSpec(f"maze{n}-loops", f"ifo/Maze{n}x{n}Loops-v0", ("N", "S", "W", "E"), _maze_goal,
+            kwargs={"size": n, "loops": 1.0}, is_maze=True, deterministic=True,
+            thesis_name=f"Maze {n}x{n} with loops", settings_from=f"maze{n}")
     for n in (3, 5, 10)
 ]
 ENVS: dict[str, EnvSpec] = {spec.name: spec for spec in _CONTROL + _MAZES}

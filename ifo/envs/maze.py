@@ -2,7 +2,10 @@
 
 A layout is a (size, size) uint8 array; each cell holds a bitmask of its OPEN sides
 (N=1, S=2, W=4, E=8; row 0 is the top, so N means row - 1). Layouts are made by
-depth-first backtracking from a random cell, as Gym-Maze makes them.
+depth-first backtracking from a random cell, as Gym-Maze makes them. With `loops` > 0 that
+share of the dead ends is then opened into a neighbour ("braiding"): the maze gains loops,
+random walks find the goal sooner, and there is more than one way through, closer to the
+world the thesis's random and expert returns suggest (see docs/CHOICES.md).
 
 Unlike the thesis (100 fixed layouts, no held-out set), layouts come from two disjoint
 pools: "train" for demonstrations and learning, "eval" for measuring generalisation.
@@ -54,11 +57,13 @@ AGENT_COLOR = (0, 0, 130)  # dark blue
 
 # --------------------------------------------------------------------------- layouts
 
-def generate_layout(size: int, seed: int) -> np.ndarray:
-    """A perfect maze (exactly one path between any two cells) by depth-first backtracking.
+def generate_layout(size: int, seed: int, loops: float = 0.0) -> np.ndarray:
+    """A perfect maze (exactly one path between any two cells) by depth-first backtracking,
+    then (`loops` > 0) braided: that share of its dead ends opened into a neighbour.
 
-    All randomness is drawn up front from `default_rng(seed)`: one number picks the
-    start cell, then one per carved passage picks among the unvisited neighbours.
+    All randomness of the perfect maze is drawn up front from `default_rng(seed)`: one number
+    picks the start cell, then one per carved passage picks among the unvisited neighbours. The
+    braiding draws from a stream of its own, so `loops=0` gives exactly the perfect maze.
     """
     if size < 2:
         raise ValueError(f"maze size must be at least 2, got {size}")
@@ -86,15 +91,43 @@ def generate_layout(size: int, seed: int) -> np.ndarray:
         layout[nr, nc] |= OPPOSITE_BIT[a]
         visited[nr][nc] = True
         stack.append((nr, nc))
+    return braid(layout, loops, np.random.default_rng([seed, 1])) if loops > 0 else layout
+
+
+def braid(layout: np.ndarray, loops: float, rng: np.random.Generator) -> np.ndarray:
+    """Open `loops` (0..1) of the dead ends (cells with one open side) into a walled-off neighbour,
+    preferring a neighbour that is a dead end too (one opening then removes two), in row-major
+    order; a copy."""
+    if not 0.0 <= loops <= 1.0:
+        raise ValueError(f"loops must be between 0 and 1, got {loops}")
+    layout = layout.copy()
+    size = layout.shape[0]
+
+    def dead_end(r: int, c: int) -> bool:
+        return bin(int(layout[r, c])).count("1") == 1
+
+    for r in range(size):
+        for c in range(size):
+            if not dead_end(r, c) or rng.random() >= loops:
+                continue
+            closed = [(a, r + ROW_STEP[a], c + COL_STEP[a]) for a in (N, S, W, E)
+                      if not layout[r, c] & OPEN_BIT[a]
+                      and 0 <= r + ROW_STEP[a] < size and 0 <= c + COL_STEP[a] < size]
+            if not closed:
+                continue
+            preferred = [x for x in closed if dead_end(x[1], x[2])] or closed
+            a, nr, nc = preferred[int(rng.integers(len(preferred)))]
+            layout[r, c] |= OPEN_BIT[a]
+            layout[nr, nc] |= OPPOSITE_BIT[a]
     return layout
 
 
-def _distinct_layouts(size: int, first_seed: int, want: int) -> list[np.ndarray]:
+def _distinct_layouts(size: int, first_seed: int, want: int, loops: float = 0.0) -> list[np.ndarray]:
     """Distinct layouts from seeds first_seed, first_seed + 1, ... (bounded scan)."""
     found: dict[bytes, np.ndarray] = {}
     since_new = 0
     for seed in range(first_seed, first_seed + MAX_SEEDS_SCANNED):
-        layout = generate_layout(size, seed)
+        layout = generate_layout(size, seed, loops)
         key = layout.tobytes()
         if key in found:
             since_new += 1
@@ -109,9 +142,9 @@ def _distinct_layouts(size: int, first_seed: int, want: int) -> list[np.ndarray]
 
 
 @lru_cache(maxsize=None)
-def _pools(size: int) -> dict[str, tuple[np.ndarray, ...]]:
-    supply = _distinct_layouts(size, 0, TRAIN_POOL_SIZE + EVAL_POOL_SIZE)
-    eval_candidates = _distinct_layouts(size, EVAL_FIRST_SEED, EVAL_POOL_SIZE)
+def _pools(size: int, loops: float = 0.0) -> dict[str, tuple[np.ndarray, ...]]:
+    supply = _distinct_layouts(size, 0, TRAIN_POOL_SIZE + EVAL_POOL_SIZE, loops)
+    eval_candidates = _distinct_layouts(size, EVAL_FIRST_SEED, EVAL_POOL_SIZE, loops)
     # When few mazes exist (3x3), share them evenly rather than leave train empty.
     total = len({l.tobytes() for l in supply} | {l.tobytes() for l in eval_candidates})
     eval_pool = eval_candidates[:min(EVAL_POOL_SIZE, total // 2)]
@@ -122,8 +155,9 @@ def _pools(size: int) -> dict[str, tuple[np.ndarray, ...]]:
     return {"train": tuple(train_pool), "eval": tuple(eval_pool)}
 
 
-def layout_pool(size: int, split: str) -> list[np.ndarray]:
-    """The layouts of one split; deterministic, and train and eval never share a layout.
+def layout_pool(size: int, split: str, loops: float = 0.0) -> list[np.ndarray]:
+    """The layouts of one split (of the perfect mazes, or of the braided ones with `loops`);
+    deterministic, and train and eval never share a layout.
 
     eval: the first 100 distinct layouts from seeds 1_000_000, 1_000_001, ...
     train: distinct layouts from seeds 0, 1, ... that are not in eval, up to 1000.
@@ -131,7 +165,7 @@ def layout_pool(size: int, split: str) -> list[np.ndarray]:
     """
     if split not in ("train", "eval"):
         raise ValueError(f"split must be 'train' or 'eval', got {split!r}")
-    return list(_pools(int(size))[split])
+    return list(_pools(int(size), float(loops))[split])
 
 
 def _validate_layout(layout, size: int) -> np.ndarray:
@@ -337,14 +371,15 @@ class MazeEnv(gym.Env):
 
     def __init__(self, size: int = 5, split: str = "train", obs_mode: str = "image", image_size: int = 64,
                  max_steps: int = 1000, deadlock_guard: bool = False, render_mode: str | None = "rgb_array",
-                 n_layouts: int | None = None):
+                 n_layouts: int | None = None, loops: float = 0.0):
         if obs_mode not in ("image", "vector"):
             raise ValueError(f"obs_mode must be 'image' or 'vector', got {obs_mode!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
         self.size = int(size)
         self.split = split
-        self.pool = layout_pool(self.size, split)
+        self.loops = float(loops)
+        self.pool = layout_pool(self.size, split, self.loops)
         if n_layouts is not None:  # a fixed world of the split's first n layouts (the authors had 100)
             if n_layouts < 1:
                 raise ValueError(f"n_layouts must be >= 1, got {n_layouts}")

@@ -106,8 +106,7 @@ def make_demonstrations(env: str, episodes: int = 100, log=print, level: int = 1
 def _make_maze_demonstrations(spec: EnvSpec, episodes: int, log) -> dict:
     from ifo.envs.maze import MazeEnv, ShortestPathExpert
 
-    size = spec.kwargs["size"]
-    env = MazeEnv(size=size, split="train", obs_mode="vector")
+    env = MazeEnv(**spec.kwargs, split="train", obs_mode="vector")
     expert = ShortestPathExpert()
     layouts, positions, next_positions, actions, rewards, starts, returns = [], [], [], [], [], [], []
     for ep in range(episodes):
@@ -143,15 +142,15 @@ def measure_references(env: str, episodes: int = 100, log=print) -> dict:
     if spec.is_maze:
         from ifo.envs.maze import layout_pool, random_return, shortest_path_return
 
-        size = spec.kwargs["size"]
+        size, loops = spec.kwargs["size"], spec.kwargs.get("loops", 0.0)
 
         def per_layout(layouts):
             return {"random": [round(random_return(l, size, episodes=20, seed=k), 6) for k, l in enumerate(layouts)],
                     "expert": [round(shortest_path_return(l), 6) for l in layouts]}
 
-        held_out = per_layout(layout_pool(size, "eval"))
+        held_out = per_layout(layout_pool(size, "eval", loops))
         # the layouts demonstrations come from (seeds 0..99): the authors' evaluation protocol
-        demo_layouts = layout_pool(size, "train")[:episodes]
+        demo_layouts = layout_pool(size, "train", loops)[:episodes]
         refs = {"random_aer": float(np.mean(held_out["random"])), "expert_aer": float(np.mean(held_out["expert"])),
                 "per_layout": held_out, "per_layout_demonstration": per_layout(demo_layouts),
                 "episodes": len(held_out["expert"])}

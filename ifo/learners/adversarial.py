@@ -92,7 +92,7 @@ class AdversarialConfig(LearnerConfig):
                                             advanced=True)
 
     def env_defaults(self, spec: EnvSpec) -> dict:
-        return {**COMMON_DEFAULTS, **ENV_DEFAULTS.get(spec.name, {})}
+        return {**COMMON_DEFAULTS, **ENV_DEFAULTS.get(spec.settings_name, {})}
 
 
 def learned_reward_env(venv, reward_fn):

@@ -89,7 +89,7 @@ class BCOConfig(LearnerConfig):
                                             advanced=True)
 
     def env_defaults(self, spec: EnvSpec) -> dict:
-        return {**COMMON_DEFAULTS, **ENV_DEFAULTS.get(spec.name, {})}
+        return {**COMMON_DEFAULTS, **ENV_DEFAULTS.get(spec.settings_name, {})}
 
     def fixed_iterations(self) -> int | None:
         return 1 if self.single_pass else None
@@ -270,7 +270,7 @@ class BCOLearner(Learner):
         if self.probes:
             with ctx.phase("attention"):  # Fig 6.1: Grad-CAM on fixed probe frames
                 record["attention"] = {"grad_cam": grad_cam_probe_record(
-                    policy, ctx.spec.kwargs["size"], ctx.config.image_size)}
+                    policy, ctx.spec.kwargs["size"], ctx.config.image_size, loops=ctx.spec.kwargs.get("loops", 0.0))}
 
     def run_policy(self, iteration: int, rng: np.random.Generator, record: dict) -> Rollouts:
         """|E| runs of π, MAP or sampled: I_pos, and v_e (the goal-aware function) per run."""

@@ -71,7 +71,7 @@ class ILPOConfig(LearnerConfig):
     hidden: tuple[int, ...] | None = option((64, 64), "hidden layer widths of the networks", advanced=True)
 
     def env_defaults(self, spec: EnvSpec) -> dict:
-        return {**COMMON_DEFAULTS, "latent_actions": spec.n_actions, **ENV_DEFAULTS.get(spec.name, {})}
+        return {**COMMON_DEFAULTS, "latent_actions": spec.n_actions, **ENV_DEFAULTS.get(spec.settings_name, {})}
 
 
 class LatentForward(nn.Module):

@@ -85,7 +85,7 @@ class SAILConfig(BCOConfig):
 
     def env_defaults(self, spec: EnvSpec) -> dict:
         return {**super().env_defaults(spec), "adversarial_weight": 0.1, "adversarial_steps": 50,
-                "discriminator_updates": 30, "is_capacity": 40_000, **SAIL_ENV_DEFAULTS.get(spec.name, {})}
+                "discriminator_updates": 30, "is_capacity": 40_000, **SAIL_ENV_DEFAULTS.get(spec.settings_name, {})}
 
     def unused(self) -> set[str]:
         out = super().unused() | {"sampling", "labels", "single_pass"}  # D decides what joins I_s

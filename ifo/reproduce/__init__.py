@@ -312,8 +312,9 @@ def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iter
         why = table.thesis_notes.get((row, env, metric))
         if why is None:
             return number(value)
-        notes.append(why)
-        return f"{number(value)} (note {len(notes)})"
+        if why not in notes:
+            notes.append(why)
+        return f"{number(value)} (note {notes.index(why) + 1})"
     chosen = [r for r in table.rows if rows is None or r.label in rows]
     if rows is not None and len(chosen) != len(set(rows)):
         raise ValueError(f"table {table_id} has no row {', '.join(set(rows) - {r.label for r in chosen})}; its rows: "
