@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -224,7 +225,7 @@ def cmd_bench(a: argparse.Namespace) -> int:
         from ifo.bench import bench_table
 
         text = bench_table((a.envs or DEFAULT_BENCH_ENVS).split(","), a.seeds, a.iterations, quick=a.quick)
-    command = "python -m ifo " + " ".join(sys.argv[1:]) if a.out else ""
+    command = "python -m ifo " + shlex.join(sys.argv[1:]) if a.out else ""  # quoted: pastes into a shell
     print(text)
     if a.out:
         from ifo.io import atomic_write_text
