@@ -158,8 +158,7 @@ class AdversarialLearner(Learner):
         from stable_baselines3.common.vec_env import DummyVecEnv
 
         cfg = config
-        if len(ctx.obs_shape) != 1:
-            raise ValueError("GAIL and GAIfO here learn from vector states; for the maze choose obs_mode=vector")
+        ctx.require_vector_states("GAIL and GAIfO here")
         if cfg.discriminator_input == "state-action" and ctx.expert_actions is None:
             raise ValueError("a (s, a) discriminator (GAIL) learns from the expert's actions, and this run has "
                              "none: GAIL needs demonstrations with actions, GAIfO does not")

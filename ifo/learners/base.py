@@ -166,6 +166,12 @@ class Context:
     def obs_shape(self) -> tuple[int, ...]:
         return tuple(self.expert.states.shape[1:])
 
+    def require_vector_states(self, method: str, why: str = "") -> None:
+        """ValueError in plain words when a method that reads state vectors gets images (the maze)."""
+        if len(self.obs_shape) != 1:
+            raise ValueError(f"{method} learns from vector states{why}; for the maze choose its vector "
+                             "observations (obs_mode=vector)")
+
     @contextmanager
     def phase(self, name: str) -> Iterator[None]:
         """Time a phase of the iteration and tell `Run` it started (progress bar, cancel check)."""

@@ -129,9 +129,7 @@ class ILPOLearner(Learner):
     def __init__(self, ctx: Context, config: ILPOConfig):
         super().__init__(ctx, config)
         cfg = config
-        if len(ctx.obs_shape) != 1:
-            raise ValueError("this ILPO learns from vector states only (its forward model predicts the change of a "
-                             "state vector); for the maze choose obs_mode=vector")
+        ctx.require_vector_states("this ILPO", " only (its forward model predicts the change of a state vector)")
         d, k, n = ctx.obs_shape[0], cfg.latent_actions, ctx.n_actions
         s, s2 = torch.as_tensor(ctx.expert.states), torch.as_tensor(ctx.expert.next_states)
         self.dynamics = LatentForward(d, k, cfg.hidden)

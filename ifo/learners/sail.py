@@ -115,9 +115,7 @@ class SAILLearner(BCOLearner):
     )
 
     def __init__(self, ctx: Context, config: SAILConfig):
-        if len(ctx.obs_shape) != 1:
-            raise ValueError("SAIL is defined for vector states (thesis Ch. 9): for the maze, choose its vector "
-                             "observations (obs_mode vector)")
+        ctx.require_vector_states("SAIL", " (thesis Ch. 9)")
         super().__init__(ctx, config)  # lines 1-5: I_pre, I_s = I_pre, the IDM and the policy
         cfg, obs_shape, n_actions, t_e = config, ctx.obs_shape, ctx.n_actions, ctx.expert
         self.accepted = self.pre.train.subset(np.zeros(0, dtype=np.int64))  # the accepted runs: none yet
