@@ -19,6 +19,7 @@ from torch import nn
 import torch.nn.functional as F
 
 ATTENTION_KINDS = ("none", "gated", "features")
+_aten = torch.ops.aten
 
 
 class Standardize(nn.Module):
@@ -118,6 +119,53 @@ class MLP(nn.Module):
                 x = layer(x)  # LayerNorm
         return x
 
+    def has_manual_gradients(self) -> bool:
+        """True when `loss_and_gradients` knows every layer (Linear, ReLU, the gated block)."""
+        return self.feature_attention is None and all(
+            isinstance(layer, (nn.Linear, nn.ReLU, GatedResidual)) for layer in self.body)
+
+    @torch.no_grad()
+    def loss_and_gradients(self, x: torch.Tensor, target: torch.Tensor,
+                           weight: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Cross-entropy of `forward(x)` against `target`, its gradients written to each parameter's
+        `.grad`; returns (loss, logits). Without autograd: for layers this small its bookkeeping costs
+        more than the arithmetic. The same ATen kernels autograd calls, on the same operands, so the
+        gradients are identical to `loss.backward()`'s, bit for bit (tests/test_nets.py)."""
+        h = (x - self.standardize.mean) / self.standardize.std
+        saved = []
+        for layer in self.body:  # forward, keeping what the backward pass needs
+            if isinstance(layer, nn.Linear):
+                saved.append((layer, h))
+                h = _aten.addmm(layer.bias, h, layer.weight.t())  # F.linear on a batch
+            elif isinstance(layer, nn.ReLU):
+                h = torch.relu(h)
+                saved.append((layer, h))
+            else:  # GatedResidual: h + gamma * (W_v h + b)
+                value = _aten.addmm(layer.value.bias, h, layer.value.weight.t())
+                saved.append((layer, (h, value)))
+                h = h + layer.gamma * value
+        log_probs = torch.log_softmax(h, 1)
+        loss, total_weight = _aten.nll_loss_forward(log_probs, target, weight, 1, -100)  # 1: mean
+        grad = _aten.nll_loss_backward(torch.ones_like(loss), log_probs, target, weight, 1, -100, total_weight)
+        grad = _aten._log_softmax_backward_data(grad, log_probs, 1, log_probs.dtype)
+        for k in range(len(saved) - 1, -1, -1):  # backward, as autograd's AddmmBackward etc. compute it
+            layer, kept = saved[k]
+            if isinstance(layer, nn.Linear):
+                layer.weight.grad = grad.t().mm(kept)
+                layer.bias.grad = grad.sum(0, keepdim=True).view(-1)
+                if k:  # the input's gradient; none for the data
+                    grad = grad.mm(layer.weight)
+            elif isinstance(layer, nn.ReLU):
+                grad = _aten.threshold_backward(grad, kept, 0)
+            else:
+                inner, value = kept
+                layer.gamma.grad = (grad * value).sum((0, 1), keepdim=True).view(1)
+                grad_value = grad * layer.gamma
+                layer.value.weight.grad = grad_value.t().mm(inner)
+                layer.value.bias.grad = grad_value.sum(0, keepdim=True).view(-1)
+                grad = grad + grad_value.mm(layer.value.weight)
+        return loss, h
+
 
 # ----------------------------------------------------------------------------- images
 class SelfAttention2d(nn.Module):
@@ -207,6 +255,10 @@ class InverseDynamics(nn.Module):
         if not self.is_image:
             self.mlp.standardize.fit(self.inputs(s, s2))
 
+    def mlp_input(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor | None:
+        """What the MLP sees (vector states; None for images): `fit` trains on it by hand."""
+        return None if self.is_image else self.inputs(s, s2)
+
     def forward(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
         if self.is_image:
             both = self.encoder(torch.cat([s, s2]))  # shared weights on both frames
@@ -230,6 +282,10 @@ class Policy(nn.Module):
     def fit_input_scaling(self, s: torch.Tensor) -> None:
         if not self.is_image:
             self.mlp.standardize.fit(s)
+
+    def mlp_input(self, s: torch.Tensor) -> torch.Tensor | None:
+        """What the MLP sees (vector states; None for images): `fit` trains on it by hand."""
+        return None if self.is_image else s
 
     def forward(self, s: torch.Tensor) -> torch.Tensor:
         if self.is_image:

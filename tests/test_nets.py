@@ -96,3 +96,91 @@ def test_the_fused_optimizer_gives_adams_weights_to_the_last_digits(obs_shape):
         fit(policy, policy, make(policy, 1e-3), [s], actions, 2, 64, torch.Generator().manual_seed(0))
         weights.append(torch.cat([p.detach().flatten() for p in policy.parameters()]))
     torch.testing.assert_close(*weights, rtol=1e-2, atol=1e-4)  # fused kernels round differently, nothing more
+
+
+# ----------------------------------------------------------------------------- vector models trained by hand
+def _gated_mlp(attention: str, layer_norm: bool = False) -> MLP:
+    torch.manual_seed(0)
+    mlp = MLP(8, 3, (32, 32), attention, layer_norm)
+    with torch.no_grad():  # gamma away from 0, scaling away from the identity: every path carries gradient
+        for block in mlp.modules():
+            if isinstance(block, GatedResidual):
+                block.gamma.fill_(0.3)
+        mlp.standardize.mean.copy_(torch.randn(8))
+        mlp.standardize.std.copy_(torch.rand(8) + 0.5)
+    return mlp
+
+
+@pytest.mark.parametrize("attention", ["none", "gated"])
+@pytest.mark.parametrize("weighted", [False, True])
+def test_hand_written_gradients_are_autograds_bit_for_bit(attention, weighted):
+    """`MLP.loss_and_gradients` replaces loss.backward() in `fit` for speed: it must not move a digit."""
+    mlp = _gated_mlp(attention)
+    x, y = torch.randn(128, 8), torch.randint(0, 3, (128,))
+    weight = torch.tensor([0.5, 1.0, 2.0]) if weighted else None
+    loss = torch.nn.functional.cross_entropy(mlp(x), y, weight=weight)
+    loss.backward()
+    expected = {name: p.grad.clone() for name, p in mlp.named_parameters()}
+    mlp.zero_grad(set_to_none=True)
+    hand_loss, logits = mlp.loss_and_gradients(x, y, weight)
+    assert torch.equal(hand_loss, loss.detach()) and torch.equal(logits, mlp(x).detach())
+    for name, p in mlp.named_parameters():
+        assert torch.equal(p.grad, expected[name]), name
+
+
+def test_the_hand_written_pass_refuses_layers_it_does_not_know():
+    assert _gated_mlp("gated").has_manual_gradients()
+    assert not _gated_mlp("features").has_manual_gradients()
+    assert not _gated_mlp("none", layer_norm=True).has_manual_gradients()
+
+
+def _reference_fit(model, optimizer, inputs, targets, epochs, batch, gen, clip=None):
+    """`fit` as it was before the hand-written pass: autograd and optimizer.step() on gathered batches."""
+    xs = [torch.as_tensor(x) for x in inputs]
+    y = torch.as_tensor(targets)
+    for _ in range(epochs):
+        order = torch.randperm(len(y), generator=gen)
+        for start in range(0, len(y), batch):
+            idx = order[start:start + batch]
+            if len(idx) < 2:
+                continue
+            loss = torch.nn.functional.cross_entropy(model(*(x[idx] for x in xs)), y[idx])
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if clip is not None:
+                torch.nn.utils.clip_grad_value_(model.parameters(), clip)
+            optimizer.step()
+
+
+@pytest.mark.parametrize("attention,layer_norm,clip", [("gated", False, None), ("none", False, 1.0),
+                                                      ("gated", True, 1.0)])
+def test_fit_trains_an_idm_exactly_as_autograd_and_adam_would(attention, layer_norm, clip):
+    """Same data, same seed: `fit` (hand-written gradients where it can, Adam's kernels called directly)
+    leaves weights and Adam's state identical to the plain autograd loop's, to the last bit."""
+    import numpy as np
+
+    from ifo.components.learning import fit, make_optimizer
+
+    rng = np.random.default_rng(0)
+    s, s2 = rng.normal(size=(777, 4)).astype(np.float32), rng.normal(size=(777, 4)).astype(np.float32)
+    a = rng.integers(0, 2, 777)
+    models = []
+    for train in ("fit", "reference"):
+        torch.manual_seed(1)
+        idm = InverseDynamics((4,), 2, attention=attention, layer_norm=layer_norm)
+        idm.fit_input_scaling(torch.as_tensor(s), torch.as_tensor(s2))
+        opt = make_optimizer(idm, 1e-3)
+        gen = torch.Generator().manual_seed(5)
+        if train == "fit":
+            for _ in range(2):  # twice: the second call starts from Adam's existing state
+                fit(idm, idm, opt, [s, s2], a, 3, 128, gen, clip_value=clip)
+        else:
+            for _ in range(2):
+                _reference_fit(idm, opt, [s, s2], a, 3, 128, gen, clip)
+        models.append((idm, opt))
+    (mine, my_opt), (ref, ref_opt) = models
+    for (name, p), q in zip(mine.named_parameters(), ref.parameters()):
+        assert torch.equal(p, q), name
+    for p, q in zip(mine.parameters(), ref.parameters()):
+        for key in ("exp_avg", "exp_avg_sq", "step"):
+            assert torch.equal(my_opt.state[p][key], ref_opt.state[q][key]), key
