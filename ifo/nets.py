@@ -99,30 +99,55 @@ class MLP(nn.Module):
         layers.append(nn.Linear(last, out_dim))
         self.body = nn.Sequential(*layers)
         self.gate_effects: list | None = None  # gate_report() collects each gated block's effect here
+        self._plan: list[tuple] | None = None
+
+    # The body as a list of (kind, tensors...) built once. For layers this small, walking the modules
+    # (isinstance, attribute lookups) costs as much as the arithmetic, at every environment step.
+    # Parameters are updated in place (Adam, load_state_dict), so the plan stays valid; _apply
+    # (module.to(), .double(), ...) may replace them, so it drops the plan.
+    _LINEAR, _RELU, _GATED, _OTHER = range(4)
+
+    def _layers(self) -> list[tuple]:
+        if self._plan is None:
+            plan = []
+            for layer in self.body:
+                if isinstance(layer, nn.Linear):
+                    plan.append((self._LINEAR, layer.weight, layer.bias))
+                elif isinstance(layer, nn.ReLU):
+                    plan.append((self._RELU,))
+                elif isinstance(layer, GatedResidual):
+                    plan.append((self._GATED, layer.value.weight, layer.value.bias, layer.gamma))
+                else:
+                    plan.append((self._OTHER, layer))  # LayerNorm
+            self._plan = plan
+        return self._plan
+
+    def _apply(self, fn, recurse=True):
+        self._plan = None
+        return super()._apply(fn, recurse)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = (x - self.standardize.mean) / self.standardize.std
         if self.feature_attention is not None:
             x = self.feature_attention(x)
-        # the layers by hand: for layers this small a module call costs more than the arithmetic
-        for layer in self.body:
-            if isinstance(layer, nn.Linear):
-                x = F.linear(x, layer.weight, layer.bias)
-            elif isinstance(layer, nn.ReLU):
+        for layer in self._layers():
+            kind = layer[0]
+            if kind == self._LINEAR:
+                x = F.linear(x, layer[1], layer[2])
+            elif kind == self._RELU:
                 x = F.relu(x)
-            elif isinstance(layer, GatedResidual):
-                added = layer.gamma * F.linear(x, layer.value.weight, layer.value.bias)
+            elif kind == self._GATED:  # x + gamma * (W_v x + b)
+                added = layer[3] * F.linear(x, layer[1], layer[2])
                 if self.gate_effects is not None:
                     self.gate_effects.append(float(added.abs().mean() / x.abs().mean().clamp_min(1e-12)))
                 x = x + added
             else:
-                x = layer(x)  # LayerNorm
+                x = layer[1](x)
         return x
 
     def has_manual_gradients(self) -> bool:
         """True when `loss_and_gradients` knows every layer (Linear, ReLU, the gated block)."""
-        return self.feature_attention is None and all(
-            isinstance(layer, (nn.Linear, nn.ReLU, GatedResidual)) for layer in self.body)
+        return self.feature_attention is None and all(layer[0] != self._OTHER for layer in self._layers())
 
     @torch.no_grad()
     def loss_and_gradients(self, x: torch.Tensor, target: torch.Tensor,
@@ -133,37 +158,41 @@ class MLP(nn.Module):
         gradients are identical to `loss.backward()`'s, bit for bit (tests/test_nets.py)."""
         h = (x - self.standardize.mean) / self.standardize.std
         saved = []
-        for layer in self.body:  # forward, keeping what the backward pass needs
-            if isinstance(layer, nn.Linear):
+        for layer in self._layers():  # forward, keeping what the backward pass needs
+            kind = layer[0]
+            if kind == self._LINEAR:
                 saved.append((layer, h))
-                h = _aten.addmm(layer.bias, h, layer.weight.t())  # F.linear on a batch
-            elif isinstance(layer, nn.ReLU):
+                h = _aten.addmm(layer[2], h, layer[1].t())  # F.linear on a batch
+            elif kind == self._RELU:
                 h = torch.relu(h)
                 saved.append((layer, h))
-            else:  # GatedResidual: h + gamma * (W_v h + b)
-                value = _aten.addmm(layer.value.bias, h, layer.value.weight.t())
+            else:  # the gated block: h + gamma * (W_v h + b)
+                value = _aten.addmm(layer[2], h, layer[1].t())
                 saved.append((layer, (h, value)))
-                h = h + layer.gamma * value
+                h = h + layer[3] * value
         log_probs = torch.log_softmax(h, 1)
         loss, total_weight = _aten.nll_loss_forward(log_probs, target, weight, 1, -100)  # 1: mean
         grad = _aten.nll_loss_backward(torch.ones_like(loss), log_probs, target, weight, 1, -100, total_weight)
         grad = _aten._log_softmax_backward_data(grad, log_probs, 1, log_probs.dtype)
         for k in range(len(saved) - 1, -1, -1):  # backward, as autograd's AddmmBackward etc. compute it
             layer, kept = saved[k]
-            if isinstance(layer, nn.Linear):
-                layer.weight.grad = grad.t().mm(kept)
-                layer.bias.grad = grad.sum(0, keepdim=True).view(-1)
+            kind = layer[0]
+            if kind == self._LINEAR:
+                weight_, bias = layer[1], layer[2]
+                weight_.grad = grad.t().mm(kept)
+                bias.grad = grad.sum(0, keepdim=True).view(-1)
                 if k:  # the input's gradient; none for the data
-                    grad = grad.mm(layer.weight)
-            elif isinstance(layer, nn.ReLU):
+                    grad = grad.mm(weight_)
+            elif kind == self._RELU:
                 grad = _aten.threshold_backward(grad, kept, 0)
             else:
+                value_weight, value_bias, gamma = layer[1], layer[2], layer[3]
                 inner, value = kept
-                layer.gamma.grad = (grad * value).sum((0, 1), keepdim=True).view(1)
-                grad_value = grad * layer.gamma
-                layer.value.weight.grad = grad_value.t().mm(inner)
-                layer.value.bias.grad = grad_value.sum(0, keepdim=True).view(-1)
-                grad = grad + grad_value.mm(layer.value.weight)
+                gamma.grad = (grad * value).sum((0, 1), keepdim=True).view(1)
+                grad_value = grad * gamma
+                value_weight.grad = grad_value.t().mm(inner)
+                value_bias.grad = grad_value.sum(0, keepdim=True).view(-1)
+                grad = grad + grad_value.mm(value_weight)
         return loss, h
 
 
