@@ -70,26 +70,46 @@ SPEED_CASES = tuple(("cartpole", m) for m in ("bc", "bco", "bco-alpha", "abco", 
 SPEED_BASELINE = Path(__file__).resolve().parents[1] / "docs" / "speed-baseline.json"
 
 
-def step_floor(steps: int = 400) -> float:
-    """Milliseconds for one Adam step (fused) of a plain 4-32-32-2 MLP at batch 128 on this machine: the
-    arithmetic floor of an iteration's hundreds of small steps."""
+def step_floor(steps: int = 400) -> dict[str, float]:
+    """Milliseconds for one training step of a 4-32-32-2 MLP at batch 128 on this machine, the unit an
+    iteration makes hundreds of: with autograd and `optimizer.step()` (fused Adam), and as `fit` trains
+    the vector models (`MLP.loss_and_gradients`, Adam's kernels called directly) for IUPE's gated MLP."""
     import torch
     import torch.nn.functional as F
 
-    model = torch.nn.Sequential(torch.nn.Linear(4, 32), torch.nn.ReLU(), torch.nn.Linear(32, 32), torch.nn.ReLU(),
-                                torch.nn.Linear(32, 2))
-    opt = torch.optim.Adam(model.parameters(), lr=1e-3, fused=True)
+    from ifo.components.learning import _optimizer_step, make_optimizer
+    from ifo.nets import MLP
+
     x, y = torch.randn(128, 4), torch.randint(0, 2, (128,))
-    best = np.inf
-    for _ in range(3):
-        start = time.perf_counter()
-        for _ in range(steps):
-            loss = F.cross_entropy(model(x), y)
+
+    def best_of(step) -> float:
+        best = np.inf
+        for _ in range(3):
+            start = time.perf_counter()
+            for _ in range(steps):
+                step()
+            best = min(best, (time.perf_counter() - start) / steps * 1000)
+        return best
+
+    out = {}
+    for attention in ("none", "gated"):
+        mlp = MLP(4, 2, (32, 32), attention)
+        opt = make_optimizer(mlp, 1e-3)
+
+        def autograd_step() -> None:
+            loss = F.cross_entropy(mlp(x), y)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-        best = min(best, (time.perf_counter() - start) / steps * 1000)
-    return best
+
+        adam = _optimizer_step(opt)
+
+        def hand_step() -> None:
+            mlp.loss_and_gradients(x, y)
+            adam()
+
+        out[f"{attention}/autograd"], out[f"{attention}/by hand"] = best_of(autograd_step), best_of(hand_step)
+    return out
 
 
 def speed_table(cases=SPEED_CASES, iterations: int = 5, log=lambda msg: print(msg, file=sys.stderr),
@@ -117,9 +137,11 @@ def speed_table(cases=SPEED_CASES, iterations: int = 5, log=lambda msg: print(ms
         ratio = f"{med('total') / before[f'{env}/{method}']:.2f}" if before.get(f"{env}/{method}") else "—"
         lines.append(f"| {env} | {method} | {setup:.2f} | {med('total'):.2f} | {ratio} | "
                      + " | ".join(f"{med(p):.2f}" for p in phases) + " |")
-    lines += ["", f"{iterations} iterations each, default settings, torch threads: 1. The floor on this machine: one "
-              f"Adam step of a plain 4-32-32-2 MLP at batch 128 takes {step_floor():.2f} ms (an iteration makes "
-              "hundreds of such steps)."]
+    floor = step_floor()
+    lines += ["", f"{iterations} iterations each, default settings, torch threads: 1. The floor on this machine, one "
+              "training step of a 4-32-32-2 MLP at batch 128 (an iteration makes hundreds): plain MLP "
+              f"{floor['none/autograd']:.2f} ms with autograd and optimizer.step(), {floor['none/by hand']:.2f} ms as "
+              f"`fit` trains it; IUPE's gated MLP {floor['gated/autograd']:.2f} ms and {floor['gated/by hand']:.2f} ms."]
     if save_baseline:
         Path(save_baseline).write_text(json.dumps(now, indent=1, sort_keys=True) + "\n")
     return "\n".join(lines)

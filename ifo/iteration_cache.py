@@ -56,9 +56,11 @@ def lineage_start(identity: dict) -> str:
     return _hash({"code": code_version(), "start": identity})
 
 
-def lineage_next(previous: str, identity: dict) -> str:
-    """The key of the state after one more iteration trained with `identity` (its configuration)."""
-    return _hash({"after": previous, "with": identity})
+def lineage_next(previous: str, identity: dict, iteration: int) -> str:
+    """The key of the state after iteration `iteration` (counted from 1) trained with `identity` (its
+    configuration). The number is part of the key: a run whose saved lineage fell behind it (runs trained
+    without a cache once left it at the start) gets keys of its own, never another run's past."""
+    return _hash({"after": previous, "with": identity, "iteration": int(iteration)})
 
 
 def _hash(obj) -> str:

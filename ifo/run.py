@@ -38,6 +38,7 @@ from ifo.seeds import Seeds, evaluation_seeds
 Progress = Callable[[str, int], None]  # (phase name, iteration) -> None
 DEMONSTRATION_LAYOUTS = 100  # the shipped maze demonstrations come from the training pool's first 100 layouts
 EVALUATE = "evaluate"
+REMOTE = "remote"  # the progress phase of an iteration that trains on a Ray worker (ifo.remote)
 HISTORY = "history"  # checkpoint arrays "history.<iteration>.<weight>": the policy after each iteration
 
 
@@ -47,7 +48,7 @@ class RunFinished(RuntimeError):
 
 class Run:
     def __init__(self, config: RunConfig, demos: Demonstrations | None = None, progress: Progress | None = None,
-                 cache: IterationCache | None = None):
+                 cache: IterationCache | None = None, trainer=None):
         limit_threads()  # one torch thread unless IFO_TORCH_THREADS says otherwise (see ifo.runtime)
         self.config = cfg = config.resolved()
         self.spec = spec = get_env(cfg.env)
@@ -86,6 +87,9 @@ class Run:
         self.cache = cache
         self.lineage: str | None = None if cfg.demos else lineage_start(self._identity())
         self.last_step_cached = False
+        # where iterations train: None here; an ifo.remote.RemoteTrainer sends them to Ray workers
+        # (never a run on a user's own demonstrations: lineage None, the file stays here)
+        self.trainer = trainer
 
     # ------------------------------------------------------------------ the shared context
     def _pools(self) -> tuple[EnvPool, EnvPool]:
@@ -153,6 +157,8 @@ class Run:
         for p in self.learner.phases:
             if p.name == name:
                 return p.doing
+        if name == REMOTE:
+            return "training the whole iteration on a Ray worker"
         return "measuring the policy: AER and Performance" if name == EVALUATE else name
 
     @property
@@ -194,20 +200,39 @@ class Run:
         if self.finished:
             raise RunFinished(f"the run has done all {self.config.iterations} iterations")
         self.last_step_cached = False
-        if self.cache is None or self.lineage is None:
+        if self.lineage is None:  # a user's own demonstrations: never shared, never sent away
             return self._train_step()
-        key = lineage_next(self.lineage, self._identity())
-        entry, computed = wait_or_compute(self.cache, key, lambda: self._entry(self._train_step()))
-        if not computed:  # the same iteration, computed by another session: take its result
+        key = lineage_next(self.lineage, self._identity(), self.iteration + 1)
+        remote = self.trainer is not None
+        compute = self._trained_remotely if remote else self._trained_here
+        if self.cache is None:
+            entry, computed = compute(), True
+        else:
+            entry, computed = wait_or_compute(self.cache, key, compute)
+        if remote or not computed:  # a worker's iteration, or another session's: take its result
             self._take(entry)
-        self.lineage = key
+            self.last_step_cached = not computed
+        self.lineage = key  # also without a cache: a run saved now and opened with one must not take another's past
         return self.records[-1]
+
+    def _trained_here(self) -> Entry:
+        return self._entry(self._train_step())
+
+    def _trained_remotely(self) -> Entry:
+        """The next iteration from the trainer's worker; this run is not changed (the caller takes it)."""
+        self._cancel.clear()
+        self._on_phase(REMOTE)
+        return self.trainer.train(self)
+
+    @property
+    def cancel_requested(self) -> bool:
+        return self._cancel.is_set()
 
     def step_if_cached(self) -> dict | None:
         """The next iteration if another session already computed it (no waiting, no training), else None."""
         if self.cache is None or self.lineage is None or self.finished:
             return None
-        key = lineage_next(self.lineage, self._identity())
+        key = lineage_next(self.lineage, self._identity(), self.iteration + 1)
         entry = self.cache.get(key)
         if entry is None:
             return None
@@ -281,6 +306,7 @@ class Run:
         branch.records = [dict(r) for r in self.records]
         branch.policy_history = dict(self.policy_history)
         branch.lineage, branch.cache = self.lineage, self.cache  # the same past; its next steps differ
+        branch.trainer = self.trainer
         return branch
 
     def evaluate(self, explore: bool = False, rng: np.random.Generator | None = None) -> dict:
@@ -335,7 +361,7 @@ class Run:
 
     @classmethod
     def load(cls, directory: str | Path, progress: Progress | None = None,
-             cache: IterationCache | None = None) -> "Run":
+             cache: IterationCache | None = None, trainer=None) -> "Run":
         from ifo import checkpoint
 
         directory = Path(directory)
@@ -343,7 +369,7 @@ class Run:
         cfg = RunConfig.from_dict(ckpt.config)
         if cfg.demos:
             cfg = replace(cfg, demos=str(directory / checkpoint.DEMOS_FILE))
-        run = cls(cfg, progress=progress, cache=cache)
+        run = cls(cfg, progress=progress, cache=cache, trainer=trainer)
         run.learner.load_state(ckpt.arrays, ckpt.meta)
         run.lineage = ckpt.meta.get("lineage") if not cfg.demos else None  # (runs saved before it: no sharing)
         run.records = [record_schema.upgrade(r) for r in ckpt.records]

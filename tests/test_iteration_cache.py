@@ -103,3 +103,20 @@ def test_a_damaged_entry_is_recomputed(tmp_path):
     again = Run(make_tiny_config(iterations=1), cache=cache)
     again.step()
     assert again.last_step_cached  # the recomputed entry replaced the damaged one
+
+
+def test_a_run_trained_without_the_cache_then_opened_with_it_keeps_its_own_past(tmp_path):
+    """`python -m ifo train --out` trains without a cache; the app opens that run with one. Its next Step
+    must continue its own iterations, not take the cache's iteration 1 of the same configuration."""
+    cache = IterationCache(tmp_path / "cache")
+    cfg = make_tiny_config(method="iupe", iterations=3)
+    Run(cfg, cache=cache).step()  # iteration 1 of this configuration is in the cache
+    mine = Run(cfg)
+    mine.run(2)
+    mine.save(tmp_path / "mine")
+    again = Run.load(tmp_path / "mine", cache=cache)
+    again.step()
+    fresh = Run(cfg)
+    fresh.run()
+    assert [r["iteration"] for r in again.records] == [1, 2, 3]
+    assert strip(again.records) == strip(fresh.records)

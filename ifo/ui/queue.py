@@ -84,9 +84,9 @@ class JobStatus:
 
 def _default_make_run(config):
     from ifo.run import Run
-    from ifo.ui.storage import iteration_cache
+    from ifo.ui.storage import run_services
 
-    return Run(config, cache=iteration_cache())
+    return Run(config, **run_services())
 
 
 def _default_save(run, user: str, run_id: str, label: str) -> None:

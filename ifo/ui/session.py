@@ -192,7 +192,7 @@ class RunSlot:
         with st.spinner(f"Preparing a new run ({describe(config)}): loading the demonstrations "
                         "and collecting random transitions..."):
             try:
-                s.run = Run(config, cache=storage.iteration_cache())
+                s.run = Run(config, **storage.run_services())
             except Exception as e:  # a missing demonstrations file, an impossible combination, ...
                 if isinstance(e, ValueError):  # DemoError and bad settings: the message says it all
                     log.warning("could not build a run: %s", e)
@@ -265,7 +265,7 @@ class RunSlot:
             if not (path / "LATEST").exists():
                 raise FileNotFoundError("it is not among your saved runs")
             with st.spinner("Opening the saved run..."):
-                run = Run.load(path, cache=storage.iteration_cache())
+                run = Run.load(path, **storage.run_services())
         except Exception as e:  # a deleted run, a foreign link, an old format
             log.warning("could not open run %r: %s", run_id, e)
             s.notices.append(f"Could not open the saved run {run_id}: {e}")
@@ -302,7 +302,7 @@ class RunSlot:
     def reopen_latest(self, key: str) -> None:
         """After a refused save: load the run as another session last saved it."""
         s = self.state
-        run = Run.load(storage.run_path(s.user, s.run_id), cache=storage.iteration_cache())
+        run = Run.load(storage.run_path(s.user, s.run_id), **storage.run_services())
         self.adopt(run, s.run_id, key)
 
     def keep_as_copy(self) -> None:

@@ -22,6 +22,7 @@ import io
 import json
 import logging
 import os
+import threading
 import re
 import time
 import uuid
@@ -211,6 +212,31 @@ def iteration_cache():
 
     mb = int(os.environ.get("IFO_LAB_CACHE_MB", "1024"))
     return IterationCache(runs_root() / CACHE_FOLDER, mb * 2**20) if mb > 0 else None
+
+
+_TRAINER_LOCK = threading.Lock()
+_TRAINER: dict = {}
+
+
+def trainer():
+    """Where this server's iterations train (ifo.remote): IFO_LAB_RAY unset, here; "local", on a local
+    Ray (IFO_LAB_RAY_CPUS workers, default 2); ray://HOST:PORT, on that cluster's workers. One per
+    process, connected at the first Step. With a cluster, raise IFO_LAB_MAX_TRAININGS to its CPUs."""
+    where = os.environ.get("IFO_LAB_RAY", "").strip()
+    if not where:
+        return None
+    with _TRAINER_LOCK:
+        if where not in _TRAINER:
+            from ifo.remote import RemoteTrainer
+
+            _TRAINER[where] = RemoteTrainer(None if where == "local" else where,
+                                            local_cpus=int(os.environ.get("IFO_LAB_RAY_CPUS", "2")))
+        return _TRAINER[where]
+
+
+def run_services() -> dict:
+    """What every Run the app builds or opens gets: the shared iteration cache and the trainer."""
+    return {"cache": iteration_cache(), "trainer": trainer()}
 
 
 # ---------------------------------------------------------------------- read-only shares
