@@ -540,3 +540,35 @@ def test_each_learner_family_draws_its_own_loop():
     text = _texts(loop_diagram(gaifo, "discriminator", expert_size=500, layout="adversarial",
                                phase_boxes={"discriminator": "discriminator"}))
     assert "expert 60%, agent 55%" in text and "4,096 steps so far" in text and "The adversarial round" in text
+
+
+def test_a_figure_is_built_once_per_content_and_shared_across_sessions():
+    """Thirty students on one lesson draw the same figures: built once per server, rebuilt when the
+    records, the iteration shown or the environment differ."""
+    import copy
+
+    import plotly.graph_objects as go
+
+    from ifo.ui import panels
+
+    class Counting:
+        key = "test.counting"
+        calls = 0
+
+        def draw(self, records, env, iteration):
+            self.calls += 1
+            return go.Figure(go.Scatter(y=[r["evaluation"]["aer"] for r in records]))
+
+    records = [{"iteration": k, "evaluation": {"aer": 10.0 * k}} for k in (1, 2, 3)]
+    panel = Counting()
+
+    def draw(recs, shown=None, env="cartpole"):
+        return panels.shared_figure(panel, panels.PanelContext(None, None, recs, shown, {"env": env}))
+
+    first = draw(records)
+    assert draw(copy.deepcopy(records)) is first and panel.calls == 1  # another session's equal records
+    draw(records, shown=2)
+    draw(records, env="acrobot")
+    changed = copy.deepcopy(records)
+    changed[-1]["evaluation"]["aer"] = 31.0
+    assert draw(changed) is not first and panel.calls == 4

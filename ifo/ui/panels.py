@@ -2,6 +2,10 @@
 and the drawing of the registry's panels (`ifo.ui.registry`), the rollout video among them."""
 from __future__ import annotations
 
+import hashlib
+import json
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -75,10 +79,44 @@ class PanelContext:
     records: list
     iteration: int | None
     config: dict | None = None
+    _records_key: str | None = None
 
     @property
     def config_dict(self) -> dict:
         return self.config if self.config is not None else self.run.config.to_dict()
+
+    @property
+    def records_key(self) -> str:
+        """A hash of the records' content (what a figure is a function of), computed once per page run."""
+        if self._records_key is None:
+            text = json.dumps(self.records, sort_keys=True, default=str)
+            self._records_key = hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
+        return self._records_key
+
+
+# Figures are pure functions of (records, environment, iteration shown), and building one in plotly
+# costs ~50 ms, ten times what sending it does. A class following one lesson draws the same figures
+# (its students take the teacher's iterations from the cache), and every rerun of a page (a scrub back
+# and forth, a Play's ticks) draws them again: so each is built once per server process and shared.
+# Streamlit and the downloads only read a figure (to_dict, a copy for the slide theme).
+MAX_SHARED_FIGURES = 256
+_figures: "OrderedDict[tuple, go.Figure | None]" = OrderedDict()
+_figures_lock = threading.Lock()
+
+
+def shared_figure(panel, ctx: PanelContext) -> go.Figure | None:
+    """`panel.draw(records, env, iteration)`, built once per content across every session of this server."""
+    key = (panel.key, ctx.records_key, EnvView.of(ctx.config_dict), ctx.iteration)
+    with _figures_lock:
+        if key in _figures:
+            _figures.move_to_end(key)
+            return _figures[key]
+    fig = panel.draw(ctx.records, key[2], ctx.iteration)  # built outside the lock: sessions draw in parallel
+    with _figures_lock:
+        _figures[key] = fig
+        while len(_figures) > MAX_SHARED_FIGURES:
+            _figures.popitem(last=False)
+    return fig
 
 
 def panel_caption(panel) -> None:
@@ -117,7 +155,7 @@ def _one(panel, ctx: PanelContext) -> None:
         panel.render(ctx)
         panel_caption(panel)
         return
-    fig = panel.draw(ctx.records, EnvView.of(ctx.config_dict), ctx.iteration)
+    fig = shared_figure(panel, ctx)
     if fig is None:
         return
     st.plotly_chart(fig, key=f"panel.{panel.key}", config=CHART_CONFIG)
