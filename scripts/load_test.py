@@ -10,6 +10,11 @@ session its own seed: nothing to share, the bounded queue of trainings decides).
 real sizes (default: IFO_LAB_FAST's tiny runs). The report gives Step latency percentiles, the
 steps completed, and the server's peak memory (VmHWM) when it served the app itself.
 
+`--client protocol` replaces the browsers by sessions that speak Streamlit's own websocket protocol
+(the messages a browser's page sends and receives, nothing drawn): what the server alone costs, as
+in a class whose students' browsers run on their own computers. `--client browser` (the default)
+is the whole experience, browsers included, all on this machine.
+
 Without --url it serves the app itself (`streamlit run app.py` on a free loopback port, with
 IFO_LAB_FAST=1 and a throw-away IFO_LAB_RUNS). It opens N pages in one headless Debian
 chromium (Playwright; never downloads a browser), each in its own browser context, i.e. its
@@ -101,6 +106,117 @@ async def session(browser, url: str, k: int, steps: int, step_timeout: float, re
         await context.close()
 
 
+class ProtocolSession:
+    """One session of the step page spoken to over Streamlit's websocket, as a browser's page would: reruns
+    with the Step button's trigger, reading the deltas for the counter. Nothing is drawn."""
+
+    COUNTER = re.compile(r"^#### Iteration (\d+) of \d+$")
+
+    def __init__(self, ws, query: str):
+        self.ws, self.query = ws, query
+        self.buttons: dict[str, str] = {}
+        self.counter: int | None = None
+        self.finished = False
+
+    @classmethod
+    async def open(cls, url: str, query: str, timeout: float) -> "ProtocolSession":
+        import websockets
+
+        ws = await websockets.connect(url.replace("http", "ws", 1) + "/_stcore/stream", subprotocols=["streamlit"],
+                                      max_size=None, open_timeout=timeout)
+        session = cls(ws, query)
+        await session.rerun()
+        await session.until(lambda: session.finished and session.counter is not None and "Step" in session.buttons,
+                            timeout)
+        return session
+
+    async def rerun(self, trigger: str | None = None) -> None:
+        from streamlit.proto.BackMsg_pb2 import BackMsg
+
+        msg = BackMsg()
+        msg.rerun_script.query_string, msg.rerun_script.page_name = self.query, "step"
+        if trigger is not None:  # a click: only the button's state; the others keep theirs on the server
+            widget = msg.rerun_script.widget_states.widgets.add()
+            widget.id, widget.trigger_value = trigger, True
+        self.finished = False
+        await self.ws.send(msg.SerializeToString())
+
+    async def until(self, done, timeout: float) -> None:
+        from streamlit.proto.ForwardMsg_pb2 import ForwardMsg
+
+        deadline = time.monotonic() + timeout
+        while not done():
+            raw = await asyncio.wait_for(self.ws.recv(), max(0.01, deadline - time.monotonic()))
+            msg = ForwardMsg()
+            msg.ParseFromString(raw)
+            kind = msg.WhichOneof("type")
+            if kind == "page_info_changed":
+                self.query = msg.page_info_changed.query_string  # ?user= and the settings, kept like a URL
+            elif kind == "script_finished":
+                self.finished = True
+            elif kind == "delta" and msg.delta.WhichOneof("type") == "new_element":
+                element = msg.delta.new_element
+                what = element.WhichOneof("type")
+                if what == "button":
+                    self.buttons[element.button.label] = element.button.id
+                elif what == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
+                    self.counter = int(m.group(1))
+
+    async def step(self, timeout: float) -> None:
+        want = (self.counter or 0) + 1
+        await self.rerun(self.buttons["Step"])
+        await self.until(lambda: self.counter == want and self.finished, timeout)
+
+    async def close(self) -> None:
+        await self.ws.close()
+
+
+async def protocol_session(url: str, k: int, steps: int, step_timeout: float, results: dict, mode: str = "classic",
+                           start_after: asyncio.Event | None = None, ready: asyncio.Event | None = None,
+                           lead: int = 0) -> None:
+    latencies, errors, where, client = [], [], "opening the step page", None
+    try:
+        if start_after is not None:
+            await start_after.wait()
+        query = urllib.parse.urlparse(step_url("http://x", "free" if mode == "free" else "lesson", k)).query
+        client = await ProtocolSession.open(url, query, step_timeout)
+        for i in range(1, steps + lead + 1):
+            where = f"step {i}"
+            start = time.perf_counter()
+            await client.step(step_timeout)
+            if ready is None or i > lead:
+                latencies.append(time.perf_counter() - start)
+            if ready is not None and i == lead:
+                ready.set()
+    except Exception as e:  # noqa: BLE001 - a failed session is counted, not fatal
+        errors.append(f"session {k}, {where}: {type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''}")
+    finally:
+        results[k] = (latencies, errors)
+        if client is not None:
+            await client.close()
+
+
+async def run_protocol_sessions(url: str, sessions: int, steps: int, step_timeout: float, timeout: float,
+                                mode: str = "classic", lead: int = 0) -> dict:
+    results: dict[int, tuple[list, list]] = {}
+    if mode == "lesson" and lead > 0:
+        ahead = asyncio.Event()
+        tasks = [asyncio.create_task(protocol_session(url, 0, steps, step_timeout, results, mode, ready=ahead,
+                                                      lead=lead))]
+        tasks += [asyncio.create_task(protocol_session(url, k, steps, step_timeout, results, mode, start_after=ahead))
+                  for k in range(1, sessions)]
+    else:
+        tasks = [asyncio.create_task(protocol_session(url, k, steps, step_timeout, results, mode))
+                 for k in range(sessions)]
+    done, pending = await asyncio.wait(tasks, timeout=timeout)
+    for t in pending:
+        t.cancel()
+    await asyncio.gather(*pending, return_exceptions=True)
+    for k in range(sessions):
+        results.setdefault(k, ([], [f"session {k}: did not finish within --timeout {timeout:.0f} s"]))
+    return results
+
+
 async def run_sessions(url: str, sessions: int, steps: int, step_timeout: float, timeout: float,
                        shots: str | None = None, mode: str = "classic", lead: int = 0) -> dict:
     from playwright.async_api import async_playwright
@@ -147,10 +263,10 @@ def server_peak_mib(url: str) -> float | None:
 
 
 def report(results: dict, sessions: int, steps: int, wall: float, mode: str = "classic",
-           peak_mib: float | None = None) -> str:
+           peak_mib: float | None = None, client: str = "browser") -> str:
     latencies = np.array([x for lat, _ in results.values() for x in lat])
     errors = [e for _, errs in results.values() for e in errs]
-    lines = [f"### Load test ({mode}): {sessions} sessions × {steps} Steps", "",
+    lines = [f"### Load test ({mode}, {client} clients): {sessions} sessions × {steps} Steps", "",
              "| steps completed | p50 (s) | p95 (s) | p99 (s) | max (s) | mean (s) | wall clock (s) | server peak RSS (MiB) |",
              "|---|---|---|---|---|---|---|---|"]
     rss = "—" if peak_mib is None else f"{peak_mib:.0f}"
@@ -160,7 +276,9 @@ def report(results: dict, sessions: int, steps: int, wall: float, mode: str = "c
                      f"| {latencies.max():.2f} | {latencies.mean():.2f} | {wall:.0f} | {rss} |")
     else:
         lines.append(f"| 0 / {sessions * steps} | — | — | — | — | — | {wall:.0f} | {rss} |")
-    lines += ["", "Latency: from the click on Step until the page's counter shows the new iteration."]
+    lines += ["", "Latency: from the click on Step until the page's counter shows the new iteration"
+              + (" (the protocol client: from sending the click until the counter's delta and the end of the "
+                 "script run arrive)." if client == "protocol" else ".")]
     if errors:
         lines += ["", "Errors:"] + [f"- {e}" for e in errors]
     return "\n".join(lines)
@@ -179,10 +297,13 @@ def main(argv: list[str] | None = None) -> int:
                              "configuration, the teacher --lead Steps ahead; free: every session its own seed")
     parser.add_argument("--lead", type=int, default=0, help="lesson: the teacher's Steps ahead of the class")
     parser.add_argument("--full", action="store_true", help="real sizes (default: IFO_LAB_FAST's tiny runs)")
+    parser.add_argument("--client", choices=["browser", "protocol"], default="browser",
+                        help="browser: a headless chromium page per session; protocol: Streamlit's websocket "
+                             "messages only (the server's share; the students' browsers are elsewhere)")
     args = parser.parse_args(argv)
     if not 1 <= args.sessions <= 100 or not 1 <= args.steps <= 50:
         parser.error("--sessions must be 1..100 and --steps 1..50")
-    if not Path(CHROMIUM).exists():
+    if args.client == "browser" and not Path(CHROMIUM).exists():
         parser.error(f"{CHROMIUM} is missing: install Debian's chromium package")
     with tempfile.TemporaryDirectory(prefix="ifo-load-") as tmp:
         if args.url:
@@ -199,10 +320,15 @@ def main(argv: list[str] | None = None) -> int:
             start = time.perf_counter()
             if args.screenshots:
                 Path(args.screenshots).mkdir(parents=True, exist_ok=True)
-            results = asyncio.run(run_sessions(url, args.sessions, args.steps, args.step_timeout, args.timeout,
-                                               args.screenshots, args.mode, args.lead))
+            if args.client == "protocol":
+                results = asyncio.run(run_protocol_sessions(url, args.sessions, args.steps, args.step_timeout,
+                                                            args.timeout, args.mode, args.lead))
+            else:
+                results = asyncio.run(run_sessions(url, args.sessions, args.steps, args.step_timeout, args.timeout,
+                                                   args.screenshots, args.mode, args.lead))
             peak = None if args.url else server_peak_mib(url)
-            print(report(results, args.sessions, args.steps, time.perf_counter() - start, args.mode, peak))
+            print(report(results, args.sessions, args.steps, time.perf_counter() - start, args.mode, peak,
+                         args.client))
             print(f"\nSettings: {'real sizes' if args.full else 'IFO_LAB_FAST tiny runs'}; "
                   f"{'lesson ' + str(LESSON) + f', teacher {args.lead} Steps ahead' if args.mode == 'lesson' else ''}"
                   f"{'each session its own seed' if args.mode == 'free' else ''}.")
