@@ -33,7 +33,8 @@ import sys
 import tempfile
 import time
 import urllib.parse
-from contextlib import nullcontext
+import subprocess
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -123,7 +124,7 @@ class ProtocolSession:
         import websockets
 
         ws = await websockets.connect(url.replace("http", "ws", 1) + "/_stcore/stream", subprotocols=["streamlit"],
-                                      max_size=None, open_timeout=timeout)
+                                      max_size=None, open_timeout=timeout, ping_interval=None)
         session = cls(ws, query)
         await session.rerun()
         await session.until(lambda: session.finished and session.counter is not None and "Step" in session.buttons,
@@ -247,6 +248,18 @@ async def run_sessions(url: str, sessions: int, steps: int, step_timeout: float,
     return results
 
 
+@contextmanager
+def ray_head(cpus: int = 1):
+    """A Ray head on this machine for the duration (`ray start --head`), stopped afterwards."""
+    ray = str(Path(sys.executable).with_name("ray"))
+    subprocess.run([ray, "start", "--head", f"--num-cpus={cpus}", "--include-dashboard=false",
+                    "--disable-usage-stats"], check=True, capture_output=True, timeout=120)
+    try:
+        yield
+    finally:
+        subprocess.run([ray, "stop", "--force"], capture_output=True, timeout=120)
+
+
 def server_peak_mib(url: str) -> float | None:
     """The app server's peak resident memory (VmHWM), found by its port in /proc (Linux)."""
     port = urllib.parse.urlparse(url).port
@@ -297,6 +310,9 @@ def main(argv: list[str] | None = None) -> int:
                              "configuration, the teacher --lead Steps ahead; free: every session its own seed")
     parser.add_argument("--lead", type=int, default=0, help="lesson: the teacher's Steps ahead of the class")
     parser.add_argument("--full", action="store_true", help="real sizes (default: IFO_LAB_FAST's tiny runs)")
+    parser.add_argument("--ray", action="store_true",
+                        help="the app it serves trains on a Ray started for the test on this machine (`ray start "
+                             "--head`, IFO_LAB_RAY=auto): trainings in worker processes, not in the server's own")
     parser.add_argument("--client", choices=["browser", "protocol"], default="browser",
                         help="browser: a headless chromium page per session; protocol: Streamlit's websocket "
                              "messages only (the server's share; the students' browsers are elsewhere)")
@@ -315,8 +331,9 @@ def main(argv: list[str] | None = None) -> int:
             server = nullcontext(args.url.rstrip("/"))
         else:
             server = serve_app(Path(tmp) / "server.log", {"IFO_LAB_FAST": "" if args.full else "1",
-                                                           "IFO_LAB_RUNS": str(Path(tmp) / "runs")})
-        with server as url:  # RuntimeError with the server's log if it does not start
+                                                           "IFO_LAB_RUNS": str(Path(tmp) / "runs"),
+                                                           "IFO_LAB_RAY": "auto" if args.ray else ""})
+        with ray_head() if args.ray and not args.url else nullcontext(), server as url:  # RuntimeError: the log
             start = time.perf_counter()
             if args.screenshots:
                 Path(args.screenshots).mkdir(parents=True, exist_ok=True)
@@ -330,6 +347,7 @@ def main(argv: list[str] | None = None) -> int:
             print(report(results, args.sessions, args.steps, time.perf_counter() - start, args.mode, peak,
                          args.client))
             print(f"\nSettings: {'real sizes' if args.full else 'IFO_LAB_FAST tiny runs'}; "
+                  f"{'trainings on a local Ray; ' if args.ray else ''}"
                   f"{'lesson ' + str(LESSON) + f', teacher {args.lead} Steps ahead' if args.mode == 'lesson' else ''}"
                   f"{'each session its own seed' if args.mode == 'free' else ''}.")
     return 0

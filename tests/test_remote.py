@@ -78,8 +78,8 @@ def test_the_step_page_trains_on_ray_workers_when_told_to(trainer, monkeypatch, 
     monkeypatch.setenv("IFO_LAB_FAST", "1")
     monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
     monkeypatch.setenv("IFO_LAB_CACHE_MB", "0")
-    monkeypatch.setenv("IFO_LAB_RAY", "local")
-    monkeypatch.setattr(storage, "_TRAINER", {"local": trainer})
+    monkeypatch.setenv("IFO_LAB_RAY", "ray://a-cluster:10001")
+    monkeypatch.setattr(storage, "_TRAINER", {"ray://a-cluster:10001": trainer})  # a local Ray stands in
     at = AppTest.from_file(str(Path(__file__).resolve().parents[1] / "app.py"), default_timeout=120)
     at.run()
     at.switch_page("pages/step_through.py").run()

@@ -219,9 +219,11 @@ _TRAINER: dict = {}
 
 
 def trainer():
-    """Where this server's iterations train (ifo.remote): IFO_LAB_RAY unset, here; "local", on a local
-    Ray (IFO_LAB_RAY_CPUS workers, default 2); ray://HOST:PORT, on that cluster's workers. One per
-    process, connected at the first Step. With a cluster, raise IFO_LAB_MAX_TRAININGS to its CPUs."""
+    """Where this server's iterations train (ifo.remote): IFO_LAB_RAY unset, here; else the address of a
+    running Ray cluster (`ray start --head` prints it; "auto" finds one started on this machine). One per
+    process, connected at the first Step. Raise IFO_LAB_MAX_TRAININGS to the cluster's CPUs.
+    (The server never starts a Ray of its own: a Ray whose driver is the Streamlit process lost its object
+    store connection as soon as two sessions ran, so the cluster must be a separate one.)"""
     where = os.environ.get("IFO_LAB_RAY", "").strip()
     if not where:
         return None
@@ -229,8 +231,7 @@ def trainer():
         if where not in _TRAINER:
             from ifo.remote import RemoteTrainer
 
-            _TRAINER[where] = RemoteTrainer(None if where == "local" else where,
-                                            local_cpus=int(os.environ.get("IFO_LAB_RAY_CPUS", "2")))
+            _TRAINER[where] = RemoteTrainer(where)
         return _TRAINER[where]
 
 
