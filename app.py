@@ -1,7 +1,7 @@
 """IfO Lab: the Streamlit entry point. Run with `streamlit run app.py`.
 
 Navigation, the page config and a landing page for a class. Each activity is a page in
-`pages/`; the training itself lives in the `ifo` library, which never imports streamlit.
+`views/`; the training itself lives in the `ifo` library, which never imports streamlit.
 Set IFO_LAB_FAST=1 for tiny runs (used by the tests; see `ifo.ui.settings`).
 """
 import os
@@ -19,11 +19,10 @@ limit_threads()
 ICON = os.path.join(os.path.dirname(os.path.abspath(__file__)), "assets", "icon.png")  # local: nothing fetched
 st.set_page_config(page_title="IfO Lab", page_icon=ICON, layout="wide")
 
-# url_path differs from the file's name on purpose. Streamlit treats a server's first session as a
-# v1 multipage app (because pages/ exists): a deep link to /step_through would then run the page
-# alone, without this file, for that whole session. /step instead shows a dismissable "Page not
-# found" dialog over the right page, once per server start (streamlit/streamlit#9992).
-step_page = st.Page("pages/step_through.py", title="Step through a run", icon=":material/skip_next:",
+# The pages live in views/, not pages/: with a pages/ folder Streamlit treats a server's first session
+# as a v1 multipage app, and a deep link there (/runs, /watch?share=..., /resilience) ran the page
+# alone, without this file, its sidebar listing file names (streamlit/streamlit#9992).
+step_page = st.Page("views/step_through.py", title="Step through a run", icon=":material/skip_next:",
                     url_path="step")
 
 
@@ -58,9 +57,9 @@ def landing() -> None:
 storage.current_user()
 home = st.Page(landing, title="Welcome", icon=":material/school:", default=True)
 st.navigation([home, step_page,
-               st.Page("pages/runs.py", title="Your runs", icon=":material/folder_open:", url_path="runs"),
-               st.Page("pages/compare.py", title="Compare and ablate", icon=":material/compare_arrows:",
+               st.Page("views/runs.py", title="Your runs", icon=":material/folder_open:", url_path="runs"),
+               st.Page("views/compare.py", title="Compare and ablate", icon=":material/compare_arrows:",
                        url_path="compare"),
-               st.Page("pages/watch.py", title="Watch a shared run", icon=":material/visibility:",
+               st.Page("views/watch.py", title="Watch a shared run", icon=":material/visibility:",
                        url_path="watch"),
-               st.Page("pages/resilience.py", title="Sub-optimal experts", icon=":material/trending_down:", url_path="resilience")]).run()
+               st.Page("views/resilience.py", title="Sub-optimal experts", icon=":material/trending_down:", url_path="resilience")]).run()

@@ -31,7 +31,7 @@ def one_pair(steps: int) -> tuple[dict[str, list[float]], str]:
     def open_page() -> AppTest:
         at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=600)
         at.run()
-        at.switch_page("pages/step_through.py").run()
+        at.switch_page("views/step_through.py").run()
         return at
 
     def timed(action) -> float:

@@ -10,7 +10,7 @@ import pytest
 from streamlit.testing.v1 import AppTest
 
 ROOT = Path(__file__).resolve().parents[1]
-STEP_PAGE = "pages/step_through.py"
+STEP_PAGE = "views/step_through.py"
 DIAGRAM = "step.diagram"
 
 
@@ -442,7 +442,7 @@ def test_the_user_stays_the_same_across_pages():
     at.button(key="step").click().run()
     assert user_of(at) == user
     at.query_params.pop(storage.USER_PARAM)  # a sidebar link carries no ?user=
-    at.switch_page("pages/runs.py").run()
+    at.switch_page("views/runs.py").run()
     assert not at.exception
     assert user_of(at) == user
     assert [r.iterations_done for r in storage.list_runs(user)] == [1]  # the autosave is where the list looks
@@ -487,7 +487,7 @@ def test_a_read_only_share_shows_the_run_and_a_copy_to_play_with():
     owner = owner[0] if isinstance(owner, list) else owner
 
     student = open_app(share=token)
-    student.switch_page("pages/watch.py").run()
+    student.switch_page("views/watch.py").run()
     assert not student.exception and not student.error
     assert any("read-only" in m.value for m in student.markdown)
     assert counter(student) == "Iteration 2 of 10" and "watch.diagram" in chart_keys(student)
@@ -501,7 +501,7 @@ def test_a_read_only_share_shows_the_run_and_a_copy_to_play_with():
 
 def test_a_bad_share_link_says_so():
     at = open_app(share="0" * 32)
-    at.switch_page("pages/watch.py").run()
+    at.switch_page("views/watch.py").run()
     assert not at.exception and "Could not open this shared run" in at.error[0].value
 
 
@@ -572,3 +572,9 @@ def test_a_figure_is_built_once_per_content_and_shared_across_sessions():
     changed = copy.deepcopy(records)
     changed[-1]["evaluation"]["aer"] = 31.0
     assert draw(changed) is not first and panel.calls == 4
+
+
+def test_the_pages_folder_is_not_called_pages():
+    """With a pages/ folder beside app.py, Streamlit runs a deep link in a server's first session (a shared
+    /watch link, /runs) as a v1 multipage app: the page alone, without app.py and its navigation."""
+    assert not (ROOT / "pages").exists() and (ROOT / "views" / "step_through.py").exists()

@@ -304,7 +304,7 @@ def test_the_step_page_steps_each_baseline_and_shows_its_panels(title, panel, mo
     at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=90)
     at.query_params.update({"step.method": title})
     at.run()
-    at.switch_page(str(ROOT / "pages" / "step_through.py")).run()
+    at.switch_page(str(ROOT / "views" / "step_through.py")).run()
     assert not at.exception, at.exception
     assert at.session_state["ifo.slot.step"].run.config.method == title.lower()
     at.button(key="step").click().run()

@@ -1,4 +1,4 @@
-"""The compare page (pages/compare.py) and its helpers: configurations, thesis numbers, summary table.
+"""The compare page (views/compare.py) and its helpers: configurations, thesis numbers, summary table.
 
 The page test trains two tiny CartPole configurations through the real background queue
 (IFO_LAB_FAST=1, 2 iterations each) and checks the summary table beside the thesis's numbers.
@@ -69,7 +69,7 @@ def test_queue_two_configurations_and_read_the_summary():
     at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
     at.query_params["user"] = user
     at.run()
-    at.switch_page("pages/compare.py").run()
+    at.switch_page("views/compare.py").run()
     assert not at.exception, at.exception
     assert at.title[0].value == "Compare and ablate"
     at.number_input(key="compare.iterations.cartpole").set_value(2)
@@ -99,7 +99,7 @@ def test_another_user_does_not_see_those_jobs():
     at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
     at.query_params["user"] = "someoneelse1"
     at.run()
-    at.switch_page("pages/compare.py").run()
+    at.switch_page("views/compare.py").run()
     assert "Nothing queued yet" in " ".join(i.value for i in at.info)
 
 

@@ -82,7 +82,7 @@ def test_the_step_page_trains_on_ray_workers_when_told_to(trainer, monkeypatch, 
     monkeypatch.setattr(storage, "_TRAINER", {"ray://a-cluster:10001": trainer})  # a local Ray stands in
     at = AppTest.from_file(str(Path(__file__).resolve().parents[1] / "app.py"), default_timeout=120)
     at.run()
-    at.switch_page("pages/step_through.py").run()
+    at.switch_page("views/step_through.py").run()
     at.button(key="step").click().run()
     assert not at.exception and not at.error
     run = at.session_state["ifo.slot.step"].run

@@ -14,7 +14,7 @@ from ifo.reproduce import TABLES, reproduce
 from ifo.reproduce import chapter7 as ch7
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGE = "pages/resilience.py"
+PAGE = "views/resilience.py"
 
 
 # ----------------------------------------------------------------------------- choosing the levels

@@ -1,4 +1,4 @@
-"""The run list page (pages/runs.py) through AppTest: list, rename, delete, bad input, uploads, examples.
+"""The run list page (views/runs.py) through AppTest: list, rename, delete, bad input, uploads, examples.
 
 Runs live in a temporary IFO_LAB_RUNS; the user id comes from `?user=` like in a browser.
 """
@@ -35,7 +35,7 @@ def open_runs_page(user: str | None = USER) -> AppTest:
     if user:
         at.query_params["user"] = user
     at.run()
-    at.switch_page("pages/runs.py").run()
+    at.switch_page("views/runs.py").run()
     assert not at.exception, at.exception
     return at
 

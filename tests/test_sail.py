@@ -319,7 +319,7 @@ def test_the_step_page_steps_sail_and_shows_its_panels(monkeypatch, tmp_path):
     at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
     at.query_params.update({"step.method": "SAIL"})
     at.run()
-    at.switch_page("pages/step_through.py").run()
+    at.switch_page("views/step_through.py").run()
     assert not at.exception
     assert at.session_state["ifo.slot.step"].run.config.method == "sail"
     at.button(key="step").click().run()

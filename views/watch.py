@@ -47,7 +47,7 @@ if right.button("Make my own copy", key="watch.copy", type="primary", icon=":mat
     except (ValueError, OSError) as e:
         st.error(f"Could not copy the run: {e}")
     else:
-        st.switch_page("pages/step_through.py", query_params={"run": new_id, storage.USER_PARAM: user})
+        st.switch_page("views/step_through.py", query_params={"run": new_id, storage.USER_PARAM: user})
 
 
 @st.fragment(run_every=FOLLOW_SECONDS)

@@ -19,7 +19,7 @@ from ifo.ui import storage
 from ifo.ui.queue import QueueFull, get_queue
 from ifo.ui.settings import env_label, fast_overrides, method_label
 
-STEP_PAGE = "pages/step_through.py"
+STEP_PAGE = "views/step_through.py"
 limit_threads()
 st.title("Your runs")
 user = storage.current_user()
@@ -128,7 +128,7 @@ if queue.jobs(user):
         st.session_state["runs.was_active"] = queue.active(user)
 
     training()
-    st.page_link("pages/compare.py", label="Curves and the summary table: Compare and ablate",
+    st.page_link("views/compare.py", label="Curves and the summary table: Compare and ablate",
                  icon=":material/compare_arrows:", query_params={storage.USER_PARAM: user})
 
 # ----------------------------------------------------------------------------- example runs
