@@ -202,8 +202,12 @@ class Run:
         self.last_step_cached = False
         if self.lineage is None:  # a user's own demonstrations: never shared, never sent away
             return self._train_step()
-        key = lineage_next(self.lineage, self._identity(), self.iteration + 1)
+        key = self._next_key()
         remote = self.trainer is not None
+        if self.cache is None and not remote:  # nothing to share: no entry to build
+            record = self._train_step()
+            self.lineage = key  # a run saved now and opened with a cache must not take another's past
+            return record
         compute = self._trained_remotely if remote else self._trained_here
         if self.cache is None:
             entry, computed = compute(), True
@@ -212,8 +216,11 @@ class Run:
         if remote or not computed:  # a worker's iteration, or another session's: take its result
             self._take(entry)
             self.last_step_cached = not computed
-        self.lineage = key  # also without a cache: a run saved now and opened with one must not take another's past
+        self.lineage = key
         return self.records[-1]
+
+    def _next_key(self) -> str:
+        return lineage_next(self.lineage, self._identity(), self.iteration + 1)
 
     def _trained_here(self) -> Entry:
         return self._entry(self._train_step())
@@ -232,7 +239,7 @@ class Run:
         """The next iteration if another session already computed it (no waiting, no training), else None."""
         if self.cache is None or self.lineage is None or self.finished:
             return None
-        key = lineage_next(self.lineage, self._identity(), self.iteration + 1)
+        key = self._next_key()
         entry = self.cache.get(key)
         if entry is None:
             return None
