@@ -77,7 +77,7 @@ def step_floor(steps: int = 400) -> dict[str, float]:
     import torch
     import torch.nn.functional as F
 
-    from ifo.components.learning import _optimizer_step, make_optimizer
+    from ifo.components.learning import make_optimizer, optimizer_step
     from ifo.nets import MLP
 
     x, y = torch.randn(128, 4), torch.randint(0, 2, (128,))
@@ -102,7 +102,7 @@ def step_floor(steps: int = 400) -> dict[str, float]:
             loss.backward()
             opt.step()
 
-        adam = _optimizer_step(opt)
+        adam = optimizer_step(opt)
 
         def hand_step() -> None:
             mlp.loss_and_gradients(x, y)

@@ -126,20 +126,28 @@ class MLP(nn.Module):
         self._plan = None
         return super()._apply(fn, recurse)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, saved: list | None = None) -> torch.Tensor:
+        """The logits. `saved`, when given, collects what `loss_and_gradients`' backward pass needs."""
         x = (x - self.standardize.mean) / self.standardize.std
         if self.feature_attention is not None:
             x = self.feature_attention(x)
         for layer in self._layers():
             kind = layer[0]
             if kind == self._LINEAR:
+                if saved is not None:
+                    saved.append((layer, x))
                 x = F.linear(x, layer[1], layer[2])
             elif kind == self._RELU:
                 x = F.relu(x)
+                if saved is not None:
+                    saved.append((layer, x))
             elif kind == self._GATED:  # x + gamma * (W_v x + b)
-                added = layer[3] * F.linear(x, layer[1], layer[2])
+                value = F.linear(x, layer[1], layer[2])
+                added = layer[3] * value
                 if self.gate_effects is not None:
                     self.gate_effects.append(float(added.abs().mean() / x.abs().mean().clamp_min(1e-12)))
+                if saved is not None:
+                    saved.append((layer, (x, value)))
                 x = x + added
             else:
                 x = layer[1](x)
@@ -154,23 +162,11 @@ class MLP(nn.Module):
                            weight: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Cross-entropy of `forward(x)` against `target`, its gradients written to each parameter's
         `.grad`; returns (loss, logits). Without autograd: for layers this small its bookkeeping costs
-        more than the arithmetic. The same ATen kernels autograd calls, on the same operands, so the
-        gradients are identical to `loss.backward()`'s, bit for bit (tests/test_nets.py)."""
-        h = (x - self.standardize.mean) / self.standardize.std
-        saved = []
-        for layer in self._layers():  # forward, keeping what the backward pass needs
-            kind = layer[0]
-            if kind == self._LINEAR:
-                saved.append((layer, h))
-                h = _aten.addmm(layer[2], h, layer[1].t())  # F.linear on a batch
-            elif kind == self._RELU:
-                h = torch.relu(h)
-                saved.append((layer, h))
-            else:  # the gated block: h + gamma * (W_v h + b)
-                value = _aten.addmm(layer[2], h, layer[1].t())
-                saved.append((layer, (h, value)))
-                h = h + layer[3] * value
-        log_probs = torch.log_softmax(h, 1)
+        more than the arithmetic. The backward pass calls the ATen kernels autograd would, on the same
+        operands, so the gradients are identical to `loss.backward()`'s, bit for bit (tests/test_nets.py)."""
+        saved: list = []
+        logits = self.forward(x, saved)
+        log_probs = torch.log_softmax(logits, 1)
         loss, total_weight = _aten.nll_loss_forward(log_probs, target, weight, 1, -100)  # 1: mean
         grad = _aten.nll_loss_backward(torch.ones_like(loss), log_probs, target, weight, 1, -100, total_weight)
         grad = _aten._log_softmax_backward_data(grad, log_probs, 1, log_probs.dtype)
@@ -193,7 +189,7 @@ class MLP(nn.Module):
                 value_weight.grad = grad_value.t().mm(inner)
                 value_bias.grad = grad_value.sum(0, keepdim=True).view(-1)
                 grad = grad + grad_value.mm(value_weight)
-        return loss, h
+        return loss, logits
 
 
 # ----------------------------------------------------------------------------- images
@@ -284,9 +280,9 @@ class InverseDynamics(nn.Module):
         if not self.is_image:
             self.mlp.standardize.fit(self.inputs(s, s2))
 
-    def mlp_input(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor | None:
-        """What the MLP sees (vector states; None for images): `fit` trains on it by hand."""
-        return None if self.is_image else self.inputs(s, s2)
+    def mlp_input(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
+        """What the MLP sees (vector states): `fit` trains it on this by hand."""
+        return self.inputs(s, s2)
 
     def forward(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
         if self.is_image:
@@ -312,9 +308,9 @@ class Policy(nn.Module):
         if not self.is_image:
             self.mlp.standardize.fit(s)
 
-    def mlp_input(self, s: torch.Tensor) -> torch.Tensor | None:
-        """What the MLP sees (vector states; None for images): `fit` trains on it by hand."""
-        return None if self.is_image else s
+    def mlp_input(self, s: torch.Tensor) -> torch.Tensor:
+        """What the MLP sees (vector states): `fit` trains it on this by hand."""
+        return s
 
     def forward(self, s: torch.Tensor) -> torch.Tensor:
         if self.is_image:

@@ -46,11 +46,7 @@ def train_iteration(config: dict, iteration: int, arrays: dict, meta: dict) -> E
     _worker_runs[key] = run
     while len(_worker_runs) > WORKER_RUNS:
         _worker_runs.popitem(last=False)
-    run.learner.load_state({k: np.array(v) for k, v in arrays.items()}, meta)  # Ray's are read-only views
-    run.records = [{}] * iteration  # only their number matters to the next iteration (its random stream)
-    run.policy_history = {}
-    record = run._train_step()
-    return run._entry(record)
+    return run.train_from(iteration, {k: np.array(v) for k, v in arrays.items()}, meta)  # Ray's are read-only
 
 
 class RemoteTrainer:

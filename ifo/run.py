@@ -225,6 +225,15 @@ class Run:
     def _trained_here(self) -> Entry:
         return self._entry(self._train_step())
 
+    def train_from(self, iteration: int, arrays: dict, meta: dict) -> Entry:
+        """Iteration `iteration + 1` trained from the learner state (arrays, meta) it had after `iteration`,
+        as a cache entry: what a Ray worker does for another process's run (ifo.remote). An iteration needs
+        only that state and its number (its random stream); this run's own past records are dropped."""
+        self.learner.load_state(arrays, meta)
+        self.records = [{}] * iteration
+        self.policy_history = {}
+        return self._trained_here()
+
     def _trained_remotely(self) -> Entry:
         """The next iteration from the trainer's worker; this run is not changed (the caller takes it)."""
         self._cancel.clear()

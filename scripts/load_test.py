@@ -51,11 +51,16 @@ LOOPBACK = {"127.0.0.1", "localhost", "::1"}
 LESSON = {"step.method": "IUPE"}  # what every session of a lesson opens (CartPole, seed 0)
 
 
-def step_url(url: str, mode: str, k: int) -> str:
+def step_query(mode: str, k: int) -> str:
+    """Session k's settings in the step page's URL: the lesson's, or (free) a seed of its own."""
     settings = dict(LESSON)
     if mode == "free":
         settings["step.seed"] = str(100 + k)  # a configuration of its own
-    return f"{url}/step?{urllib.parse.urlencode(settings)}"
+    return urllib.parse.urlencode(settings)
+
+
+def step_url(url: str, mode: str, k: int) -> str:
+    return f"{url}/step?{step_query(mode, k)}"
 
 
 async def session(browser, url: str, k: int, steps: int, step_timeout: float, results: dict,
@@ -179,8 +184,7 @@ async def protocol_session(url: str, k: int, steps: int, step_timeout: float, re
     try:
         if start_after is not None:
             await start_after.wait()
-        query = urllib.parse.urlparse(step_url("http://x", "free" if mode == "free" else "lesson", k)).query
-        client = await ProtocolSession.open(url, query, step_timeout)
+        client = await ProtocolSession.open(url, step_query(mode, k), step_timeout)
         for i in range(1, steps + lead + 1):
             where = f"step {i}"
             start = time.perf_counter()

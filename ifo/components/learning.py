@@ -51,7 +51,7 @@ def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimi
     mlp = _hand_trainable_mlp(forward, module)
     if mlp is not None:  # vector models: the MLP's input once, gradients by hand (the same numbers, faster)
         xs = [module.mlp_input(*xs)]
-    step = _optimizer_step(optimizer)
+    step = optimizer_step(optimizer)
     loss_sum, correct = torch.zeros(()), torch.zeros((), dtype=torch.long)
     for y in per_epoch:
         # summed as tensors, read once at the end: a .item() per step would wait on every step
@@ -60,15 +60,13 @@ def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimi
         if mlp is not None:  # shuffled once per pass, then contiguous slices: the same batches, no gather per step
             xs_epoch, y_epoch = [x[order] for x in xs], y[order]
         for start in range(0, n, batch_size):
+            if min(batch_size, n - start) < 2 <= n:
+                continue  # BatchNorm cannot train on a single sample
             if mlp is not None:
                 target = y_epoch[start:start + batch_size]
-                if len(target) < 2 and n >= 2:
-                    continue
                 loss, logits = mlp.loss_and_gradients(xs_epoch[0][start:start + batch_size], target, weight)
             else:
                 idx = order[start:start + batch_size]
-                if len(idx) < 2 and n >= 2:
-                    continue  # BatchNorm cannot train on a single sample
                 logits = forward(*(x[idx] for x in xs))
                 target = y[idx]
                 loss = F.cross_entropy(logits, target, weight=weight)
@@ -86,17 +84,15 @@ def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimi
 def _hand_trainable_mlp(forward: Forward, module: torch.nn.Module):
     """The module's MLP when `fit` may train it by hand (`MLP.loss_and_gradients`): a vector IDM or policy
     trained through its own forward, every layer one the hand-written backward pass knows."""
-    mlp = getattr(module, "mlp", None)
+    mlp = getattr(module, "mlp", None)  # image models have none
     if forward is not module or mlp is None or not hasattr(module, "mlp_input") or not mlp.has_manual_gradients():
         return None
-    if getattr(module, "is_image", False) or any(p.requires_grad is False for p in module.parameters()):
-        return None
-    return mlp
+    return mlp if all(p.requires_grad for p in module.parameters()) else None
 
 
-def _optimizer_step(optimizer: torch.optim.Optimizer) -> Callable[[], None]:
+def optimizer_step(optimizer: torch.optim.Optimizer) -> Callable[[], None]:
     """`optimizer.step`, or for `make_optimizer`'s fused Adam the same two kernels it runs without its
-    per-call bookkeeping (0.19 -> 0.06 ms a step here; identical numbers, tests/test_nets.py)."""
+    per-call bookkeeping (the floor line of `python -m ifo bench speed`; identical numbers, tests/test_nets.py)."""
     groups = optimizer.param_groups
     group = groups[0] if len(groups) == 1 else {}
     plain_fused_adam = (type(optimizer) is torch.optim.Adam and group.get("fused") and not group["amsgrad"]
