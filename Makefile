@@ -11,7 +11,7 @@ export PYTHONPATH := $(CURDIR)
 .PHONY: run test setup browser bench clean
 
 run: $(STAMP)
-	$(VENV)/bin/streamlit run app.py --browser.gatherUsageStats false
+	$(VENV)/bin/streamlit run app.py
 
 test: $(STAMP) browser
 	$(PY) -m pytest -q -n 2 --dist loadfile

@@ -50,6 +50,7 @@ import numpy as np
 from filelock import FileLock, Timeout
 
 from ifo.data.npz import NpzError, read_npz
+from ifo.io import npz_bytes
 
 LATEST_FILE, LABEL_FILE, DEMOS_FILE, LOCK_FILE = "LATEST", "label.json", "demos.npz", ".lock"
 CONFIG_FILE, META_FILE, RECORDS_FILE, STATE_FILE = "config.json", "meta.json", "records.json", "state.npz"
@@ -232,11 +233,10 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
         total += a.nbytes
     if total > MAX_ARRAYS_BYTES:
         raise CheckpointError(f"the state arrays are {_mib(total)}, over the {_mib(MAX_ARRAYS_BYTES)} limit")
-    buf = BytesIO()
-    np.savez_compressed(buf, **arrays)
-    if buf.tell() > MAX_STATE_BYTES:
-        raise CheckpointError(f"state.npz would be {_mib(buf.tell())}, over the {_mib(MAX_STATE_BYTES)} limit")
-    return buf.getvalue()
+    data = npz_bytes(arrays)
+    if len(data) > MAX_STATE_BYTES:
+        raise CheckpointError(f"state.npz would be {_mib(len(data))}, over the {_mib(MAX_STATE_BYTES)} limit")
+    return data
 
 
 def _check_npz(fh, run_dir: Path, what: str) -> None:

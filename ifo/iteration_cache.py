@@ -17,7 +17,6 @@ state in memory, so eviction never breaks it.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 import shutil
@@ -29,6 +28,7 @@ import numpy as np
 from filelock import FileLock, Timeout
 
 from ifo.data.npz import NpzError, read_npz
+from ifo.io import npz_bytes
 
 MAX_RECORD_BYTES = 16 << 20
 MAX_ENTRY_BYTES = 1 << 30
@@ -112,9 +112,7 @@ class IterationCache:
         tmp = path.parent / f".{key}.{uuid.uuid4().hex[:8]}.tmp"
         tmp.mkdir()
         try:
-            buf = io.BytesIO()
-            np.savez_compressed(buf, **entry.arrays)
-            (tmp / "entry.npz").write_bytes(buf.getvalue())
+            (tmp / "entry.npz").write_bytes(npz_bytes(entry.arrays))
             (tmp / "record.json").write_text(json.dumps({"meta": entry.meta, "record": entry.record}))
             os.rename(tmp, path)
         except OSError:  # a full disk, a race with another writer of the same key: the cache is optional

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import types
 import typing
 from dataclasses import dataclass, fields
@@ -70,7 +71,8 @@ def _kind(annotation) -> tuple[type, bool]:
     return annotation, False
 
 
-def specs(cls) -> list[Spec]:
+@functools.cache  # a class's fields do not change, and get_type_hints is slow (every page run asks)
+def specs(cls) -> tuple[Spec, ...]:
     hints = typing.get_type_hints(cls)
     out = []
     for f in fields(cls):
@@ -82,7 +84,7 @@ def specs(cls) -> list[Spec]:
         m = f.metadata
         out.append(Spec(f.name, kind, optional or default is None, default, m["help"], m["choices"], m["low"],
                         m["high"], m["labels"], m["advanced"], m["title"], m["widget"]))
-    return out
+    return tuple(out)
 
 
 def check_field(spec: Spec, value: Any) -> None:

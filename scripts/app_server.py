@@ -40,7 +40,7 @@ def serve_app(log_path: Path, env: dict[str, str], timeout: float = 90,
     with open(log_path, "w") as log:
         proc = subprocess.Popen(
             [sys.executable, "-m", "streamlit", "run", "app.py", "--server.headless", "true", "--server.address",
-             "127.0.0.1", "--server.port", str(port), "--browser.gatherUsageStats", "false", *extra_args],
+             "127.0.0.1", "--server.port", str(port), *extra_args],
             cwd=ROOT, env=full_env, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     try:

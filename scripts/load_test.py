@@ -3,6 +3,7 @@
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --sessions 10 --steps 3 [--url http://127.0.0.1:8501]
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode lesson --sessions 30 --lead 2 --full
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode free --sessions 10 --full
+    PYTHONPATH=. .venv/bin/python scripts/load_test.py --client protocol --mode lesson --sessions 30 --lead 3 --think 5 --full
 
 Modes: "lesson" (every session on the same configuration and seed, the teacher's session starting
 `--lead` Steps ahead: students' iterations come from the shared iteration cache) and "free" (every
@@ -12,7 +13,9 @@ steps completed, and the server's peak memory (VmHWM) when it served the app its
 
 `--client protocol` replaces the browsers by sessions that speak Streamlit's own websocket protocol
 (the messages a browser's page sends and receives, nothing drawn): what the server alone costs, as
-in a class whose students' browsers run on their own computers. `--client browser` (the default)
+in a class whose students' browsers run on their own computers. `--think S` (protocol clients) has each
+session read the page for a random 0..2S seconds before every Step (its own seeded draws), instead of
+every session pressing at the same instant; the latency still runs from the click. `--client browser` (the default)
 is the whole experience, browsers included, all on this machine.
 
 Without --url it serves the app itself (`streamlit run app.py` on a free loopback port, with
@@ -179,14 +182,17 @@ class ProtocolSession:
 
 async def protocol_session(url: str, k: int, steps: int, step_timeout: float, results: dict, mode: str = "classic",
                            start_after: asyncio.Event | None = None, ready: asyncio.Event | None = None,
-                           lead: int = 0) -> None:
+                           lead: int = 0, think: float = 0.0) -> None:
     latencies, errors, where, client = [], [], "opening the step page", None
+    pause = np.random.default_rng(k)  # this student's reading times (same every run of the test)
     try:
         if start_after is not None:
             await start_after.wait()
         client = await ProtocolSession.open(url, step_query(mode, k), step_timeout)
         for i in range(1, steps + lead + 1):
             where = f"step {i}"
+            if think and (ready is None or i > lead):  # reads the page before pressing Step (mean `think` s)
+                await asyncio.sleep(pause.uniform(0, 2 * think))
             start = time.perf_counter()
             await client.step(step_timeout)
             if ready is None or i > lead:
@@ -202,16 +208,16 @@ async def protocol_session(url: str, k: int, steps: int, step_timeout: float, re
 
 
 async def run_protocol_sessions(url: str, sessions: int, steps: int, step_timeout: float, timeout: float,
-                                mode: str = "classic", lead: int = 0) -> dict:
+                                mode: str = "classic", lead: int = 0, think: float = 0.0) -> dict:
     results: dict[int, tuple[list, list]] = {}
     if mode == "lesson" and lead > 0:
         ahead = asyncio.Event()
         tasks = [asyncio.create_task(protocol_session(url, 0, steps, step_timeout, results, mode, ready=ahead,
-                                                      lead=lead))]
-        tasks += [asyncio.create_task(protocol_session(url, k, steps, step_timeout, results, mode, start_after=ahead))
-                  for k in range(1, sessions)]
+                                                      lead=lead, think=think))]
+        tasks += [asyncio.create_task(protocol_session(url, k, steps, step_timeout, results, mode, start_after=ahead,
+                                                       think=think)) for k in range(1, sessions)]
     else:
-        tasks = [asyncio.create_task(protocol_session(url, k, steps, step_timeout, results, mode))
+        tasks = [asyncio.create_task(protocol_session(url, k, steps, step_timeout, results, mode, think=think))
                  for k in range(sessions)]
     done, pending = await asyncio.wait(tasks, timeout=timeout)
     for t in pending:
@@ -320,7 +326,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--client", choices=["browser", "protocol"], default="browser",
                         help="browser: a headless chromium page per session; protocol: Streamlit's websocket "
                              "messages only (the server's share; the students' browsers are elsewhere)")
+    parser.add_argument("--think", type=float, default=0.0,
+                        help="protocol: each session reads the page for a random 0..2×THINK seconds before every "
+                             "Step, as a class does (default 0: every session presses at once, the worst case)")
     args = parser.parse_args(argv)
+    if args.think and args.client != "protocol" or not 0 <= args.think <= 600:
+        parser.error("--think is 0..600 seconds, with --client protocol")
     if not 1 <= args.sessions <= 100 or not 1 <= args.steps <= 50:
         parser.error("--sessions must be 1..100 and --steps 1..50")
     if args.client == "browser" and not Path(CHROMIUM).exists():
@@ -343,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
                 Path(args.screenshots).mkdir(parents=True, exist_ok=True)
             if args.client == "protocol":
                 results = asyncio.run(run_protocol_sessions(url, args.sessions, args.steps, args.step_timeout,
-                                                            args.timeout, args.mode, args.lead))
+                                                            args.timeout, args.mode, args.lead, args.think))
             else:
                 results = asyncio.run(run_sessions(url, args.sessions, args.steps, args.step_timeout, args.timeout,
                                                    args.screenshots, args.mode, args.lead))
@@ -353,7 +364,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"\nSettings: {'real sizes' if args.full else 'IFO_LAB_FAST tiny runs'}; "
                   f"{'trainings on a local Ray; ' if args.ray else ''}"
                   f"{'lesson ' + str(LESSON) + f', teacher {args.lead} Steps ahead' if args.mode == 'lesson' else ''}"
-                  f"{'each session its own seed' if args.mode == 'free' else ''}.")
+                  f"{'each session its own seed' if args.mode == 'free' else ''}"
+                  f"{f'; each session reads for 0..{2 * args.think:g} s (mean {args.think:g} s) before a Step' if args.think else ''}.")
     return 0
 
 

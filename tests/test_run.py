@@ -350,3 +350,28 @@ def test_a_planned_method_says_so(monkeypatch):
     monkeypatch.setattr(ifo.methods, "PLANNED", ("dac",))  # every method of the thesis is built: pretend one is not
     with pytest.raises(ValueError, match="planned but not implemented"):
         RunConfig(env="cartpole", method="dac").resolved()
+
+
+
+@pytest.mark.parametrize("method", ["iupe", "ilpo"])
+def test_a_run_built_again_in_the_same_process_reuses_i_pre_with_the_same_numbers(tiny_config, method,
+                                                                                     monkeypatch):
+    """Every session of a lesson builds the same run: I_pre's random transitions are collected once per
+    process, and a run built from the kept set (its random stream put where the collection left it)
+    gives the numbers of one that collected them itself."""
+    import ifo.learners.base as base_mod
+    from ifo.data.transitions import RANDOM_TRANSITIONS
+
+    cfg = tiny_config(method=method, iterations=2)
+    RANDOM_TRANSITIONS.clear()
+    collected = Run(cfg)
+    calls = []
+    real = base_mod.collect_random_transitions
+    monkeypatch.setattr(base_mod, "collect_random_transitions", lambda *a, **k: calls.append(1) or real(*a, **k))
+    reused = Run(cfg)
+    assert calls == []  # built from the kept set
+    assert strip_timing(reused.run()) == strip_timing(collected.run())
+    for k, v in learned_weights(collected).items():
+        torch.testing.assert_close(learned_weights(reused)[k], v, rtol=0, atol=0)
+    Run(tiny_config(method=method, iterations=2, seed=cfg.seed + 1))
+    assert calls == [1]  # another seed: collected afresh

@@ -1,6 +1,9 @@
 """Labelled transitions (s_t, a_t, s_{t+1}): I_pre, I_pos and the IDM's training set I_s."""
 from __future__ import annotations
 
+import json
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Callable
 
@@ -88,6 +91,47 @@ def collect_random_transitions(pool: EnvPool, n_actions: int, size: int, per_act
         idx = np.flatnonzero(everything.actions == a)
         keep.append(rng.permutation(idx)[:target])
     return everything.subset(np.sort(np.concatenate(keep))), steps
+
+
+class RandomTransitionsMemo:
+    """I_pre's random transitions, collected once per process for each (environments, seed, sizes, stream
+    state). Every session of a lesson builds the same run, and collecting is most of building it (about a
+    second on CartPole). A hit also leaves the caller's random stream where the collection left it, so the
+    numbers are those of a fresh collection. The sets are read-only (learners take subsets, i.e. copies),
+    kept oldest-used-out under `max_bytes`; one collection at a time (they are GIL-bound anyway)."""
+
+    def __init__(self, max_bytes: int = 256 << 20):
+        self.max_bytes = max_bytes
+        self._sets: OrderedDict[str, tuple[Transitions, int, dict]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: dict, rng: np.random.Generator,
+            collect: Callable[[], tuple[Transitions, int]]) -> tuple[Transitions, int]:
+        name = json.dumps({**key, "rng": rng.bit_generator.state}, sort_keys=True, default=str)
+        with self._lock:
+            if name in self._sets:
+                self._sets.move_to_end(name)
+                transitions, steps, rng_after = self._sets[name]
+                rng.bit_generator.state = rng_after
+                return transitions, steps
+            transitions, steps = collect()
+            for a in (transitions.states, transitions.actions, transitions.next_states):
+                a.flags.writeable = False
+            self._sets[name] = (transitions, steps, rng.bit_generator.state)
+            while len(self._sets) > 1 and sum(_nbytes(t) for t, _, _ in self._sets.values()) > self.max_bytes:
+                self._sets.popitem(last=False)
+            return transitions, steps
+
+    def clear(self) -> None:
+        with self._lock:
+            self._sets.clear()
+
+
+def _nbytes(t: Transitions) -> int:
+    return t.states.nbytes + t.actions.nbytes + t.next_states.nbytes
+
+
+RANDOM_TRANSITIONS = RandomTransitionsMemo()
 
 
 def stratified_split(t: Transitions, n_actions: int, val_share: float,

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from ifo.data.demos import ExpertTransitions
+from ifo.data.transitions import RANDOM_TRANSITIONS, Transitions, collect_random_transitions
 from ifo.envs import EnvSpec
 from ifo.envs.rollout import EnvPool
 from ifo.io import load_module_arrays, load_optimizer_arrays, module_arrays, optimizer_arrays
@@ -171,6 +172,17 @@ class Context:
         if len(self.obs_shape) != 1:
             raise ValueError(f"{method} learns from vector states{why}; for the maze choose its vector "
                              "observations (obs_mode=vector)")
+
+    def random_transitions(self, size: int, per_action_cap: int,
+                           rng: np.random.Generator) -> tuple[Transitions, int]:
+        """I_pre: random-policy transitions from the learner's environments, class-balanced, and the
+        environment steps they took (`collect_random_transitions`; moves into the maze's walls dropped).
+        Collected once per process for the same environments, seed, sizes and `rng` state."""
+        key = {"env": self.spec.name, "pool": self.pool.env_kwargs, "batched": self.pool.batched,
+               "seed": self.seeds.seed, "size": size, "cap": per_action_cap}
+        return RANDOM_TRANSITIONS.get(key, rng, lambda: collect_random_transitions(
+            self.pool, self.n_actions, size, per_action_cap, rng,
+            seeds=lambda batch, n: self.seeds.episodes("pre", n, batch), drop_unchanged=self.spec.is_maze))
 
     @contextmanager
     def phase(self, name: str) -> Iterator[None]:

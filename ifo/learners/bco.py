@@ -24,7 +24,7 @@ import torch
 from ifo.components.exploration import choose, exploration_rate, label_passes
 from ifo.components.learning import fit, make_optimizer, predict_proba
 from ifo.components.sampling import SAMPLING_MODES, build_training_set
-from ifo.data.transitions import Transitions, collect_random_transitions, stratified_split
+from ifo.data.transitions import Transitions, stratified_split
 from ifo.envs import EnvSpec
 from ifo.envs.rollout import Rollouts, run_episodes
 from ifo.learners.base import Context, Learner, LearnerConfig, Phase, histogram
@@ -163,9 +163,7 @@ class BCOLearner(Learner):
         self.environment_steps = 0  # what the learner has taken from the environment so far (Table 8.3)
         self.il_clip = None  # gradient clipping of the imitation steps (CRIL: 1)
         if self.uses_idm:
-            everything, steps = collect_random_transitions(
-                ctx.pool, n_actions, cfg.pre_size, cfg.pre_per_action_cap, rng,
-                seeds=lambda batch, n: ctx.seeds.episodes("pre", n, batch), drop_unchanged=ctx.spec.is_maze)
+            everything, steps = ctx.random_transitions(cfg.pre_size, cfg.pre_per_action_cap, rng)
             self.environment_steps += steps
             self.pre = stratified_split(everything, n_actions, 0.3, rng)
             self.train_set = self.pre.train

@@ -32,7 +32,7 @@ from torch import nn
 
 from ifo.components.exploration import choose
 from ifo.components.learning import fit, make_optimizer, predict_proba
-from ifo.data.transitions import Transitions, collect_random_transitions, stratified_split
+from ifo.data.transitions import Transitions, stratified_split
 from ifo.envs import EnvSpec
 from ifo.envs.rollout import run_episodes
 from ifo.learners.base import Context, Learner, LearnerConfig, Phase, histogram
@@ -143,9 +143,7 @@ class ILPOLearner(Learner):
                                                         *self.latent_policy.parameters()], lr=cfg.lr, foreach=True),
                                remap=make_optimizer(self.remap, cfg.lr))
         # I_pre: a few random-policy steps, the remapping's first data (70% to learn, 30% to measure)
-        everything, self.environment_steps = collect_random_transitions(
-            ctx.pool, n, cfg.pre_size, cfg.pre_size, ctx.seeds.rng("pre"),
-            seeds=lambda batch, m: ctx.seeds.episodes("pre", m, batch), drop_unchanged=ctx.spec.is_maze)
+        everything, self.environment_steps = ctx.random_transitions(cfg.pre_size, cfg.pre_size, ctx.seeds.rng("pre"))
         self.pre = stratified_split(everything, n, 0.3, ctx.seeds.rng("pre", 1))
 
     def sizes(self) -> dict:

@@ -163,7 +163,7 @@ def _widget_value(name: str, value):
     return ",".join(map(str, value)) if isinstance(value, tuple) else value
 
 
-def _all_specs(method: str) -> list[Spec]:
+def _all_specs(method: str) -> tuple[Spec, ...]:
     return specs(RunConfig) + specs(get_method(method).learner_class.Config)
 
 
