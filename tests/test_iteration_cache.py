@@ -120,3 +120,29 @@ def test_a_run_trained_without_the_cache_then_opened_with_it_keeps_its_own_past(
     fresh.run()
     assert [r["iteration"] for r in again.records] == [1, 2, 3]
     assert strip(again.records) == strip(fresh.records)
+
+
+def test_sessions_of_one_process_read_an_entry_once_and_each_trains_on_alone(tmp_path, monkeypatch):
+    """A class's students take the teacher's iterations from one read of each entry (kept in memory,
+    read-only); one student training on from it changes nothing the others take."""
+    import ifo.iteration_cache as iteration_cache
+
+    cache = IterationCache(tmp_path / "cache")
+    cfg = make_tiny_config(method="iupe", iterations=3)
+    fresh = Run(cfg)
+    fresh.run()
+    Run(cfg, cache=cache).run(2)  # the teacher
+    reads = []
+    real = iteration_cache.read_npz
+    monkeypatch.setattr(iteration_cache, "read_npz", lambda *a, **k: reads.append(1) or real(*a, **k))
+    first, second = Run(cfg, cache=cache), Run(cfg, cache=cache)
+    first.run(2)
+    second.run(2)
+    assert len(reads) == 2 and first.last_step_cached and second.last_step_cached  # two entries, read once each
+    first.step()  # trains iteration 3 from the shared state
+    assert not first.last_step_cached and strip(first.records) == strip(fresh.records)
+    second.cache = None  # trains its own iteration 3 from the same shared state, after the first did
+    second.step()
+    assert strip(second.records) == strip(fresh.records)
+    for k, v in weights(fresh).items():
+        torch.testing.assert_close(weights(second)[k], v, rtol=0, atol=0)

@@ -19,7 +19,10 @@ class FitResult:
 
 
 def as_tensor(x: np.ndarray) -> torch.Tensor:
-    # images stay uint8 until the encoder (4x less memory); vectors become float32
+    # images stay uint8 until the encoder (4x less memory); vectors become float32. Read-only arrays (data
+    # shared between sessions: the iteration cache's, I_pre's) are copied: torch has no read-only tensors.
+    if isinstance(x, np.ndarray) and not x.flags.writeable:
+        x = np.array(x)
     return torch.from_numpy(np.ascontiguousarray(x)) if x.dtype == np.uint8 else torch.as_tensor(x, dtype=torch.float32)
 
 
@@ -41,7 +44,7 @@ def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimi
     """
     module.train()
     xs = [as_tensor(x) for x in inputs]
-    per_epoch = torch.as_tensor(targets, dtype=torch.long)
+    per_epoch = torch.tensor(targets, dtype=torch.long)  # a copy: the labels may be shared, read-only
     if per_epoch.ndim == 1:
         per_epoch = per_epoch.expand(max(1, epochs), -1)
     elif len(per_epoch) != max(1, epochs):

@@ -89,8 +89,7 @@ class PanelContext:
     def records_key(self) -> str:
         """A hash of the records' content (what a figure is a function of), computed once per page run."""
         if self._records_key is None:
-            text = json.dumps(self.records, sort_keys=True, default=str)
-            self._records_key = hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
+            self._records_key = content_key(self.records)
         return self._records_key
 
 
@@ -104,19 +103,29 @@ _figures: "OrderedDict[tuple, go.Figure | None]" = OrderedDict()
 _figures_lock = threading.Lock()
 
 
-def shared_figure(panel, ctx: PanelContext) -> go.Figure | None:
-    """`panel.draw(records, env, iteration)`, built once per content across every session of this server."""
-    key = (panel.key, ctx.records_key, EnvView.of(ctx.config_dict), ctx.iteration)
+def shared(key: tuple, build: Callable[[], go.Figure | None]) -> go.Figure | None:
+    """`build()`, once per `key` (what the figure is a pure function of) across every session of this server."""
     with _figures_lock:
         if key in _figures:
             _figures.move_to_end(key)
             return _figures[key]
-    fig = panel.draw(ctx.records, key[2], ctx.iteration)  # built outside the lock: sessions draw in parallel
+    fig = build()  # built outside the lock: sessions draw in parallel
     with _figures_lock:
         _figures[key] = fig
         while len(_figures) > MAX_SHARED_FIGURES:
             _figures.popitem(last=False)
     return fig
+
+
+def shared_figure(panel, ctx: PanelContext) -> go.Figure | None:
+    """`panel.draw(records, env, iteration)`, built once per content across every session of this server."""
+    env = EnvView.of(ctx.config_dict)
+    return shared((panel.key, ctx.records_key, env, ctx.iteration), lambda: panel.draw(ctx.records, env, ctx.iteration))
+
+
+def content_key(data) -> str:
+    """A hash of JSON-able data's content (records, a record): the key of the figures drawn from it."""
+    return hashlib.blake2b(json.dumps(data, sort_keys=True, default=str).encode(), digest_size=16).hexdigest()
 
 
 def panel_caption(panel) -> None:
@@ -183,8 +192,9 @@ def show_records(records: list[dict], total: int, hide: set[str], sizes: dict, a
                                        "show the iteration you pick. The latest is the default.")
     record = next((r for r in records if r["iteration"] == shown), records[-1] if records else None)
     if "diagram" not in hide:
-        diagram_area.plotly_chart(loop_diagram(record, None, **sizes, layout=layout), key=f"{key}.diagram",
-                                  config=CHART_CONFIG)
+        diagram = shared(("diagram", content_key(record), tuple(sorted(sizes.items())), layout),
+                         lambda: loop_diagram(record, None, **sizes, layout=layout))
+        diagram_area.plotly_chart(diagram, key=f"{key}.diagram", config=CHART_CONFIG)
         st.caption("The method's loop: the box being trained lights up; the numbers are those of the iteration "
                    "shown. *Thesis Algorithms 5.1 (ABCO), 6.1 (IUPE), 8.1 (CRIL), 9.1 (SAIL); Sec 3.2-3.4 "
                    "(ILPO, GAIL, GAIfO).*")
