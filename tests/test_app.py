@@ -593,3 +593,13 @@ def test_the_server_skips_streamlits_full_garbage_collection_after_every_page_ru
         for name in values:
             assert f"{section}.{name}" in config.get_config_options(), f"Streamlit has no option {section}.{name}"
     assert settings["runner"]["postScriptGC"] is False
+
+
+def test_a_link_may_name_choices_as_the_configuration_does():
+    """`?step.env=maze3&step.method=iupe` (the names of the CLI and the configuration) opens that run, as
+    the labels the page itself writes into its links (`Maze 3x3`, `IUPE`) do; it was once ignored."""
+    at = open_step_page(**{"step.env": "maze3", "step.method": "iupe", "step.maze_eval_layouts": "demonstration"})
+    cfg = slot(at).run.config
+    assert (cfg.env, cfg.method, cfg.maze_eval_layouts) == ("maze3", "iupe", "demonstration")
+    at.run()
+    assert not at.exception and slot(at).run.config.env == "maze3"  # and it stays so

@@ -112,6 +112,20 @@ def test_step_a_maze(app, page, method):
     expect(page.get_by_text("Grad-CAM of the policy on fixed maze frames")).to_be_visible()
 
 
+def test_a_link_naming_the_maze_and_method_as_the_cli_does_opens_them(app, page):
+    """`/step?step.env=maze3&step.method=iupe` (the configuration's names, as in the CLI) opens IUPE on the
+    3x3 maze, as a link with the page's own labels does; once it opened CartPole without a word."""
+    open_app(page, app, "step", **{"step.env": "maze3", "step.method": "iupe"})
+    expect(page.get_by_text("Current run: IUPE on Maze 3x3, seed 0")).to_be_visible()
+    step(page, 1, 15)
+    expect(error_boxes(page)).to_have_count(0)
+    page.reload()
+    wait_idle(page)
+    expect(page.get_by_text("Current run: IUPE on Maze 3x3, seed 0")).to_be_visible()
+    expect(counter(page)).to_have_text("Iteration 1 of 15")
+    expect(page.locator(CHART).filter(has_text="Where the policy looks (Grad-CAM)")).to_be_visible()
+
+
 # ----------------------------------------------------------------------------- 3. an example run
 def test_open_an_example_run_and_continue_it(app, page, snap):
     """"Open a copy" of a shipped example run: it opens finished on the step page; one more

@@ -184,8 +184,26 @@ def _apply_preset(key: str) -> None:
     st.session_state[_k(key, "preset")] = None  # the selectbox only applies; the caption says what matches
 
 
+def _link_by_name(widget_key: str, choices, label) -> None:
+    """A link may name a choice as the configuration does (`?step.env=maze3`), not by the label the bound
+    widget writes (`Maze 3x3`), which Streamlit would drop (opening the default). Called before the
+    widget is drawn: it starts with the named choice."""
+    value = st.query_params.get(widget_key)
+    if value is None or widget_key in st.session_state:
+        return
+    by_name = {str(c): c for c in choices if c is not None}
+    if value in by_name and value not in {str(label(c)) for c in by_name.values()}:
+        st.session_state[widget_key] = by_name[value]
+
+
 def _widget(s: Spec, key: str, default, bind: dict, disabled: bool = False, optional: bool = False):
     """One widget for one field, as its declaration says (labels, bounds, help)."""
+    if bind and s.choices and s.labels:
+        _link_by_name(key, s.choices, lambda v: s.labels.get(v, v))
+    return _draw_widget(s, key, default, bind, disabled, optional)
+
+
+def _draw_widget(s: Spec, key: str, default, bind: dict, disabled: bool, optional: bool):
     help_text = s.help[0].upper() + s.help[1:] + "." if s.help else None
     if optional and (s.choices is not None or s.kind is bool):  # None: the default, shown as such
         choices = [None] + (list(s.choices) if s.choices is not None else [False, True])
@@ -232,6 +250,9 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches_show
     where = st.sidebar if where is None else where
     b = {"bind": "query-params"} if bind else {}
     run_specs = {s.name: s for s in specs(RunConfig)}
+    if bind:
+        _link_by_name(_k(key, "env"), ENVS, env_label)
+        _link_by_name(_k(key, "method"), METHODS, method_label)
     with where:
         st.subheader("Run settings")
         env = st.selectbox("Environment", list(ENVS), format_func=env_label, key=_k(key, "env"), **b,
