@@ -20,9 +20,7 @@ import hashlib
 import json
 import os
 import shutil
-import threading
 import uuid
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +29,7 @@ from filelock import FileLock, Timeout
 
 from ifo.data.npz import NpzError, read_npz
 from ifo.io import npz_bytes
+from ifo.runtime import BoundedCache
 
 MAX_RECORD_BYTES = 16 << 20
 MAX_ENTRY_BYTES = 1 << 30
@@ -101,13 +100,16 @@ class IterationCache:
                 return None
             identity = (str(path), *(getattr(st, a) for st in (record_stat, state_stat)
                                      for a in ("st_ino", "st_size", "st_mtime_ns")))
-            recent = _RECENT.get(identity)
-            if recent is None:
+            kept = _RECENT.get(identity)
+            if kept is None:
                 text = record_file.read_text()
                 arrays = read_npz(state_file.read_bytes(), max_array_bytes=MAX_ENTRY_BYTES,
                                   max_total_bytes=2 * MAX_ENTRY_BYTES)
-                recent = _RECENT.put(identity, arrays, text)
-            arrays, text = recent
+                for a in arrays.values():
+                    a.flags.writeable = False
+                kept = arrays, text
+                _RECENT.put(identity, kept)
+            arrays, text = kept
             stored = json.loads(text)  # the meta and record anew for each caller: theirs to change
             os.utime(path)  # recently used: evicted last
             return Entry(arrays, stored["meta"], stored["record"])
@@ -156,38 +158,11 @@ class IterationCache:
         return removed
 
 
-class _RecentEntries:
-    """The entries this process read last: thirty students taking the teacher's iteration read the same
-    entry, and reading it is a tenth of a Step from the cache. Keyed by the files' identity (inode, size,
-    modification time), so an entry evicted or rewritten on disk is read again, or missed, as before.
-    The arrays are shared by every caller, so they are read-only (a learner copies what it trains)."""
-
-    def __init__(self, max_bytes: int = 256 << 20):
-        self.max_bytes = max_bytes
-        self._entries: OrderedDict[tuple, tuple[dict[str, np.ndarray], str]] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, identity: tuple) -> tuple[dict[str, np.ndarray], str] | None:
-        with self._lock:
-            if identity in self._entries:
-                self._entries.move_to_end(identity)
-                return self._entries[identity]
-        return None
-
-    def put(self, identity: tuple, arrays: dict[str, np.ndarray], text: str) -> tuple[dict[str, np.ndarray], str]:
-        for a in arrays.values():
-            a.flags.writeable = False
-        with self._lock:
-            self._entries[identity] = arrays, text
-            while len(self._entries) > 1 and self._bytes() > self.max_bytes:
-                self._entries.popitem(last=False)
-        return arrays, text
-
-    def _bytes(self) -> int:
-        return sum(sum(a.nbytes for a in arrays.values()) + len(text) for arrays, text in self._entries.values())
-
-
-_RECENT = _RecentEntries()
+# The entries this process read last: thirty students taking the teacher's iteration read the same entry,
+# and reading it is a tenth of a Step from the cache. Keyed by the files' identity (inode, size,
+# modification time), so an entry evicted or rewritten on disk is read again, or missed, as before.
+# The arrays are shared by every caller, so they are read-only (a learner copies what it trains).
+_RECENT = BoundedCache(256 << 20, size=lambda kept: sum(a.nbytes for a in kept[0].values()) + len(kept[1]))
 
 
 def _remove(path: Path) -> bool:

@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import os
+import threading
+from collections import OrderedDict
+from typing import Any, Callable
 
 import torch
 
@@ -17,3 +20,32 @@ def limit_threads(n: int | None = None) -> int:
     if torch.get_num_threads() != n:
         torch.set_num_threads(n)
     return n
+
+
+class BoundedCache:
+    """What a process keeps for every session (I_pre's random transitions, the cache entries it read),
+    oldest-used out once `size(value)` sums past `max_bytes` (the newest always stays). Thread-safe;
+    a caller that computes a missing value holds `lock` around get-compute-put if it must be done once."""
+
+    def __init__(self, max_bytes: int, size: Callable[[Any], int]):
+        self.max_bytes, self.size = max_bytes, size
+        self.lock = threading.RLock()
+        self._values: OrderedDict = OrderedDict()
+
+    def get(self, key):
+        with self.lock:
+            if key not in self._values:
+                return None
+            self._values.move_to_end(key)
+            return self._values[key]
+
+    def put(self, key, value) -> None:
+        with self.lock:
+            self._values[key] = value
+            self._values.move_to_end(key)
+            while len(self._values) > 1 and sum(map(self.size, self._values.values())) > self.max_bytes:
+                self._values.popitem(last=False)
+
+    def clear(self) -> None:
+        with self.lock:
+            self._values.clear()

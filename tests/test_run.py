@@ -363,7 +363,7 @@ def test_a_run_built_again_in_the_same_process_reuses_i_pre_with_the_same_number
     from ifo.data.transitions import RANDOM_TRANSITIONS
 
     cfg = tiny_config(method=method, iterations=2)
-    RANDOM_TRANSITIONS.clear()
+    RANDOM_TRANSITIONS.clear()  # the first run collects
     collected = Run(cfg)
     calls = []
     real = base_mod.collect_random_transitions

@@ -2,14 +2,13 @@
 from __future__ import annotations
 
 import json
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 from ifo.envs.rollout import EnvPool, run_episodes
+from ifo.runtime import BoundedCache
 
 
 @dataclass
@@ -93,45 +92,32 @@ def collect_random_transitions(pool: EnvPool, n_actions: int, size: int, per_act
     return everything.subset(np.sort(np.concatenate(keep))), steps
 
 
-class RandomTransitionsMemo:
-    """I_pre's random transitions, collected once per process for each (environments, seed, sizes, stream
-    state). Every session of a lesson builds the same run, and collecting is most of building it (about a
-    second on CartPole). A hit also leaves the caller's random stream where the collection left it, so the
-    numbers are those of a fresh collection. The sets are read-only (learners take subsets, i.e. copies),
-    kept oldest-used-out under `max_bytes`; one collection at a time (they are GIL-bound anyway)."""
-
-    def __init__(self, max_bytes: int = 256 << 20):
-        self.max_bytes = max_bytes
-        self._sets: OrderedDict[str, tuple[Transitions, int, dict]] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key: dict, rng: np.random.Generator,
-            collect: Callable[[], tuple[Transitions, int]]) -> tuple[Transitions, int]:
-        name = json.dumps({**key, "rng": rng.bit_generator.state}, sort_keys=True, default=str)
-        with self._lock:
-            if name in self._sets:
-                self._sets.move_to_end(name)
-                transitions, steps, rng_after = self._sets[name]
-                rng.bit_generator.state = rng_after
-                return transitions, steps
-            transitions, steps = collect()
-            for a in (transitions.states, transitions.actions, transitions.next_states):
-                a.flags.writeable = False
-            self._sets[name] = (transitions, steps, rng.bit_generator.state)
-            while len(self._sets) > 1 and sum(_nbytes(t) for t, _, _ in self._sets.values()) > self.max_bytes:
-                self._sets.popitem(last=False)
-            return transitions, steps
-
-    def clear(self) -> None:
-        with self._lock:
-            self._sets.clear()
-
-
 def _nbytes(t: Transitions) -> int:
     return t.states.nbytes + t.actions.nbytes + t.next_states.nbytes
 
 
-RANDOM_TRANSITIONS = RandomTransitionsMemo()
+# I_pre's random transitions, collected once per process for each (environments, seed, sizes, random
+# stream state): every session of a lesson builds the same run, and collecting is most of building it
+# (about a second on CartPole). The sets are read-only (learners take subsets, i.e. copies).
+RANDOM_TRANSITIONS = BoundedCache(256 << 20, size=lambda kept: _nbytes(kept[0]))
+
+
+def random_transitions_once(key: dict, rng: np.random.Generator,
+                            collect: Callable[[], tuple[Transitions, int]]) -> tuple[Transitions, int]:
+    """`collect()` (which draws from `rng`) once per process for `key` and `rng`'s state. A kept set also
+    leaves `rng` where the collection left it, so the numbers are those of a fresh collection."""
+    name = json.dumps({**key, "rng": rng.bit_generator.state}, sort_keys=True, default=str)
+    with RANDOM_TRANSITIONS.lock:  # one collection at a time: they are GIL-bound anyway
+        kept = RANDOM_TRANSITIONS.get(name)
+        if kept is None:
+            transitions, steps = collect()
+            for a in (transitions.states, transitions.actions, transitions.next_states):
+                a.flags.writeable = False
+            kept = (transitions, steps, rng.bit_generator.state)
+            RANDOM_TRANSITIONS.put(name, kept)
+        transitions, steps, rng_after = kept
+        rng.bit_generator.state = rng_after
+        return transitions, steps
 
 
 def stratified_split(t: Transitions, n_actions: int, val_share: float,

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ifo.data.demos import ExpertTransitions
-from ifo.data.transitions import RANDOM_TRANSITIONS, Transitions, collect_random_transitions
+from ifo.data.transitions import Transitions, collect_random_transitions, random_transitions_once
 from ifo.envs import EnvSpec
 from ifo.envs.rollout import EnvPool
 from ifo.io import load_module_arrays, load_optimizer_arrays, module_arrays, optimizer_arrays
@@ -180,7 +180,7 @@ class Context:
         Collected once per process for the same environments, seed, sizes and `rng` state."""
         key = {"env": self.spec.name, "pool": self.pool.env_kwargs, "batched": self.pool.batched,
                "seed": self.seeds.seed, "size": size, "cap": per_action_cap}
-        return RANDOM_TRANSITIONS.get(key, rng, lambda: collect_random_transitions(
+        return random_transitions_once(key, rng, lambda: collect_random_transitions(
             self.pool, self.n_actions, size, per_action_cap, rng,
             seeds=lambda batch, n: self.seeds.episodes("pre", n, batch), drop_unchanged=self.spec.is_maze))
 
