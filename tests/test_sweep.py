@@ -139,7 +139,13 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_rows(tmp_path):
             assert time.monotonic() < deadline
             time.sleep(0.2)
         proc.send_signal(signal.SIGINT)  # Ctrl-C: the trainings in flight are lost, the finished ones kept
-        proc.wait(300)  # a hang guard: Ray's shutdown took over 120 s once on a loaded 2-core machine
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            # Ctrl-C's ray.shutdown() did not return twice in the full suite (not understood; it exits in
+            # seconds alone): then the sweep is killed, which it must survive just the same
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(60)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
