@@ -30,22 +30,26 @@ class BoundedCache:
     def __init__(self, max_bytes: int, size: Callable[[Any], int]):
         self.max_bytes, self.size = max_bytes, size
         self.lock = threading.RLock()
-        self._values: OrderedDict = OrderedDict()
+        self._values: OrderedDict = OrderedDict()  # key -> (value, its size)
+        self._total = 0
 
     def get(self, key):
         with self.lock:
             if key not in self._values:
                 return None
             self._values.move_to_end(key)
-            return self._values[key]
+            return self._values[key][0]
 
     def put(self, key, value) -> None:
         with self.lock:
-            self._values[key] = value
-            self._values.move_to_end(key)
-            while len(self._values) > 1 and sum(map(self.size, self._values.values())) > self.max_bytes:
-                self._values.popitem(last=False)
+            if key in self._values:
+                self._total -= self._values.pop(key)[1]
+            self._values[key] = (value, self.size(value))
+            self._total += self._values[key][1]
+            while len(self._values) > 1 and self._total > self.max_bytes:
+                self._total -= self._values.popitem(last=False)[1][1]
 
     def clear(self) -> None:
         with self.lock:
             self._values.clear()
+            self._total = 0

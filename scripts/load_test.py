@@ -4,10 +4,13 @@
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode lesson --sessions 30 --lead 2 --full
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode free --sessions 10 --full
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --client protocol --mode lesson --sessions 30 --lead 3 --think 5 --full
+    PYTHONPATH=. .venv/bin/python scripts/load_test.py --client protocol --mode watch --sessions 31 --think 3 --full
 
 Modes: "lesson" (every session on the same configuration and seed, the teacher's session starting
 `--lead` Steps ahead: students' iterations come from the shared iteration cache) and "free" (every
-session its own seed: nothing to share, the bounded queue of trainings decides). `--full` uses the
+session its own seed: nothing to share, the bounded queue of trainings decides) and "watch" (protocol
+clients: the teacher's session Steps and shares its run, the other sessions follow it on the read-only
+watch page; `--think` is then the teacher's pause between Steps). `--full` uses the
 real sizes (default: IFO_LAB_FAST's tiny runs). The report gives Step latency percentiles, the
 steps completed, and the server's peak memory (VmHWM) when it served the app itself.
 
@@ -121,6 +124,8 @@ class ProtocolSession:
 
     COUNTER = re.compile(r"^#### Iteration (\d+) of \d+$")
 
+    PAGE = "step"
+
     def __init__(self, ws, query: str):
         self.ws, self.query = ws, query
         self.buttons: dict[str, str] = {}
@@ -143,7 +148,7 @@ class ProtocolSession:
         from streamlit.proto.BackMsg_pb2 import BackMsg
 
         msg = BackMsg()
-        msg.rerun_script.query_string, msg.rerun_script.page_name = self.query, "step"
+        msg.rerun_script.query_string, msg.rerun_script.page_name = self.query, self.PAGE
         if trigger is not None:  # a click: only the button's state; the others keep theirs on the server
             widget = msg.rerun_script.widget_states.widgets.add()
             widget.id, widget.trigger_value = trigger, True
@@ -178,6 +183,124 @@ class ProtocolSession:
 
     async def close(self) -> None:
         await self.ws.close()
+
+
+class WatchSession(ProtocolSession):
+    """A student on the watch page of the teacher's shared run (`/watch?share=...`), spoken to as a browser's
+    page would: the page's fragment is rerun on the timer the server asks for (its `auto_rerun` message, every
+    FOLLOW_SECONDS), and the whole page is redrawn when the teacher's run has a newer checkpoint. `seen[i]` is
+    when the counter first showed iteration i."""
+
+    PAGE = "watch"
+
+    def __init__(self, ws, query: str):
+        super().__init__(ws, query)
+        self.seen: dict[int, float] = {}
+        self.fragment: tuple[float, str] | None = None  # (interval, fragment id) of the page's auto-rerun
+        self.page_hash = ""
+
+    async def listen(self) -> None:
+        """Read the server's messages for as long as the session lives (a task of its own)."""
+        from streamlit.proto.ForwardMsg_pb2 import ForwardMsg
+
+        while True:
+            msg = ForwardMsg()
+            msg.ParseFromString(await self.ws.recv())
+            kind = msg.WhichOneof("type")
+            if kind == "navigation":
+                self.page_hash = msg.navigation.page_script_hash  # a browser names its page by it from then on
+            elif kind == "auto_rerun":
+                self.fragment = (msg.auto_rerun.interval, msg.auto_rerun.fragment_id)
+            elif kind == "page_info_changed":
+                self.query = msg.page_info_changed.query_string
+            elif kind == "script_finished":
+                self.finished = True
+            elif kind == "delta" and msg.delta.WhichOneof("type") == "new_element":
+                element = msg.delta.new_element
+                if element.WhichOneof("type") == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
+                    self.counter = int(m.group(1))
+                    self.seen.setdefault(self.counter, time.perf_counter())
+
+    async def follow(self) -> None:
+        """The browser's timer: the fragment asks again every interval (not while a run is still going)."""
+        from streamlit.proto.BackMsg_pb2 import BackMsg
+
+        while True:
+            interval = self.fragment[0] if self.fragment else 1.0
+            await asyncio.sleep(interval)
+            if self.fragment is None or not self.finished:
+                continue
+            msg = BackMsg()
+            msg.rerun_script.query_string, msg.rerun_script.page_name = self.query, self.PAGE
+            msg.rerun_script.fragment_id, msg.rerun_script.is_auto_rerun = self.fragment[1], True
+            msg.rerun_script.page_script_hash = self.page_hash
+            self.finished = False
+            await self.ws.send(msg.SerializeToString())
+
+
+async def run_watch_sessions(url: str, runs: Path, sessions: int, steps: int, step_timeout: float,
+                             timeout: float, think: float) -> tuple[dict, str]:
+    """The teacher (session 0) trains one iteration on the step page and shares the run; sessions 1.. open
+    the share link and watch. Then the teacher Steps `steps` times, each once every student has seen the
+    last one (or a Step timeout went by) and `think` seconds more; a student's latency for iteration i runs
+    from the teacher's click on Step (the training included) to the student's page showing it. Returns the
+    students' results and a line on the teacher's own Steps."""
+    import os
+
+    import websockets
+
+    results: dict[int, tuple[list, list]] = {k: ([], []) for k in range(sessions)}
+    behind: list[float] = []
+    idle: list[float] = []  # the server's CPU share while the class only watched
+    teacher = await ProtocolSession.open(url, step_query("lesson", 0), step_timeout)
+    students: list[WatchSession] = []
+    tasks: list[asyncio.Task] = []
+    try:
+        await teacher.step(step_timeout)  # a saved run to share
+        params = urllib.parse.parse_qs(teacher.query)
+        os.environ["IFO_LAB_RUNS"] = str(runs)  # the server's runs folder: share as the Your runs page does
+        from ifo.ui import storage
+        token = storage.share_run(params[storage.USER_PARAM][0], params["run"][0])
+        for k in range(1, sessions):
+            ws = await websockets.connect(url.replace("http", "ws", 1) + "/_stcore/stream", subprotocols=["streamlit"],
+                                          max_size=None, open_timeout=step_timeout, ping_interval=None)
+            student = WatchSession(ws, urllib.parse.urlencode({storage.SHARE_PARAM: token}))
+            students.append(student)
+            tasks += [asyncio.create_task(student.listen()), asyncio.create_task(student.follow())]
+            await student.rerun()
+        deadline = time.monotonic() + timeout
+        for i in range(2, steps + 2):
+            await asyncio.sleep(think / 2)  # the pages finish drawing the last iteration
+            cpu, start = server_cpu_seconds(url), time.perf_counter()
+            await asyncio.sleep(think / 2)  # the class watches; the server only answers the pages' asks
+            if cpu is not None and think:
+                idle.append((server_cpu_seconds(url) - cpu) / (time.perf_counter() - start))
+            clicked = time.perf_counter()
+            await teacher.step(step_timeout)
+            shown = time.perf_counter()
+            results[0][0].append(shown - clicked)
+            until = min(deadline, time.monotonic() + step_timeout)
+            while any(i not in s.seen for s in students) and time.monotonic() < until:
+                await asyncio.sleep(0.05)
+            for k, s in enumerate(students, start=1):
+                if i in s.seen:
+                    results[k][0].append(s.seen[i] - clicked)
+                    behind.append(s.seen[i] - shown)
+                else:
+                    results[k][1].append(f"session {k}: did not show iteration {i} within {step_timeout:.0f} s")
+    finally:
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await asyncio.gather(*(c.ws.close() for c in [teacher, *students]), return_exceptions=True)
+    p50, p95 = np.percentile(behind, [50, 95]) if behind else (np.nan, np.nan)
+    note = (f"The teacher's own Steps (training, then the page): median {np.median(results[0][0]):.2f} s. A student's "
+            f"page shows the iteration p50 {p50:+.2f} s / p95 {p95:+.2f} s after the teacher's page has (negative: before "
+            "the teacher's page has finished drawing it)." + (
+                f" Between Steps (the second half of each pause), with {sessions - 1} pages asking, the server used "
+                f"{np.mean(idle):.0%} of a core."
+                if idle else ""))
+    return {k: v for k, v in results.items() if k}, note  # the teacher's own Steps are not the class's latency
 
 
 async def protocol_session(url: str, k: int, steps: int, step_timeout: float, results: dict, mode: str = "classic",
@@ -270,19 +393,39 @@ def ray_head(cpus: int = 1):
         subprocess.run([ray, "stop", "--force"], capture_output=True, timeout=120)
 
 
-def server_peak_mib(url: str) -> float | None:
-    """The app server's peak resident memory (VmHWM), found by its port in /proc (Linux)."""
+def server_proc(url: str) -> Path | None:
+    """The app server's /proc folder, found by its port (Linux)."""
     port = urllib.parse.urlparse(url).port
     for proc in Path("/proc").glob("[0-9]*"):
         try:
             cmd = (proc / "cmdline").read_bytes().split(b"\0")
             if b"streamlit" in b" ".join(cmd) and str(port).encode() in cmd:
-                for line in (proc / "status").read_text().splitlines():
-                    if line.startswith("VmHWM:"):
-                        return int(line.split()[1]) / 1024
+                return proc
         except OSError:
             continue
     return None
+
+
+def server_peak_mib(url: str) -> float | None:
+    """The app server's peak resident memory (VmHWM)."""
+    try:
+        for line in (server_proc(url) / "status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except (OSError, TypeError):
+        pass
+    return None
+
+
+def server_cpu_seconds(url: str) -> float | None:
+    """CPU seconds the app server has used so far (user + system, all its threads)."""
+    import os
+
+    try:
+        fields = (server_proc(url) / "stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, TypeError, IndexError, ValueError):
+        return None
 
 
 def report(results: dict, sessions: int, steps: int, wall: float, mode: str = "classic",
@@ -299,9 +442,14 @@ def report(results: dict, sessions: int, steps: int, wall: float, mode: str = "c
                      f"| {latencies.max():.2f} | {latencies.mean():.2f} | {wall:.0f} | {rss} |")
     else:
         lines.append(f"| 0 / {sessions * steps} | — | — | — | — | — | {wall:.0f} | {rss} |")
-    lines += ["", "Latency: from the click on Step until the page's counter shows the new iteration"
-              + (" (the protocol client: from sending the click until the counter's delta and the end of the "
-                 "script run arrive)." if client == "protocol" else ".")]
+    if mode == "watch":
+        lines += ["", "Latency: from the teacher's click on Step (the iteration's training included) until a student's "
+                  "watch page shows the new iteration (the page's fragment asks every FOLLOW_SECONDS of views/watch.py, "
+                  "on the browser's timer, and redraws the page when the teacher has stepped)."]
+    else:
+        lines += ["", "Latency: from the click on Step until the page's counter shows the new iteration"
+                  + (" (the protocol client: from sending the click until the counter's delta and the end of the "
+                     "script run arrive)." if client == "protocol" else ".")]
     if errors:
         lines += ["", "Errors:"] + [f"- {e}" for e in errors]
     return "\n".join(lines)
@@ -315,9 +463,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=600, help="bound on the whole test, seconds")
     parser.add_argument("--step-timeout", type=float, default=180, help="bound on one Step, seconds")
     parser.add_argument("--screenshots", help="save a screenshot of each failed session into this folder")
-    parser.add_argument("--mode", choices=["classic", "lesson", "free"], default="classic",
+    parser.add_argument("--mode", choices=["classic", "lesson", "free", "watch"], default="classic",
                         help="classic: the default settings from the landing page; lesson: every session the same "
-                             "configuration, the teacher --lead Steps ahead; free: every session its own seed")
+                             "configuration, the teacher --lead Steps ahead; free: every session its own seed; "
+                             "watch (protocol clients): the teacher Steps, the others watch the shared run")
     parser.add_argument("--lead", type=int, default=0, help="lesson: the teacher's Steps ahead of the class")
     parser.add_argument("--full", action="store_true", help="real sizes (default: IFO_LAB_FAST's tiny runs)")
     parser.add_argument("--ray", action="store_true",
@@ -332,6 +481,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.think and args.client != "protocol" or not 0 <= args.think <= 600:
         parser.error("--think is 0..600 seconds, with --client protocol")
+    if args.mode == "watch" and (args.client != "protocol" or args.url or args.sessions < 2):
+        parser.error("--mode watch needs --client protocol, at least 2 sessions, and no --url (it shares the "
+                     "teacher's run in the runs folder of the app it serves)")
     if not 1 <= args.sessions <= 100 or not 1 <= args.steps <= 50:
         parser.error("--sessions must be 1..100 and --steps 1..50")
     if args.client == "browser" and not Path(CHROMIUM).exists():
@@ -352,20 +504,26 @@ def main(argv: list[str] | None = None) -> int:
             start = time.perf_counter()
             if args.screenshots:
                 Path(args.screenshots).mkdir(parents=True, exist_ok=True)
-            if args.client == "protocol":
+            note = ""
+            if args.mode == "watch":
+                results, note = asyncio.run(run_watch_sessions(url, Path(tmp) / "runs", args.sessions, args.steps,
+                                                               args.step_timeout, args.timeout, args.think))
+            elif args.client == "protocol":
                 results = asyncio.run(run_protocol_sessions(url, args.sessions, args.steps, args.step_timeout,
                                                             args.timeout, args.mode, args.lead, args.think))
             else:
                 results = asyncio.run(run_sessions(url, args.sessions, args.steps, args.step_timeout, args.timeout,
                                                    args.screenshots, args.mode, args.lead))
             peak = None if args.url else server_peak_mib(url)
-            print(report(results, args.sessions, args.steps, time.perf_counter() - start, args.mode, peak,
-                         args.client))
+            print(report(results, len(results), args.steps, time.perf_counter() - start, args.mode, peak,
+                         args.client) + (f"\n\n{note}" if note else ""))
             print(f"\nSettings: {'real sizes' if args.full else 'IFO_LAB_FAST tiny runs'}; "
                   f"{'trainings on a local Ray; ' if args.ray else ''}"
                   f"{'lesson ' + str(LESSON) + f', teacher {args.lead} Steps ahead' if args.mode == 'lesson' else ''}"
                   f"{'each session its own seed' if args.mode == 'free' else ''}"
-                  f"{f'; each session reads for 0..{2 * args.think:g} s (mean {args.think:g} s) before a Step' if args.think else ''}.")
+                  f"{f'the teacher (session 0) Steps, {args.sessions - 1} sessions watch its shared run' if args.mode == 'watch' else ''}"
+                  f"{f'; the teacher waits {args.think:g} s between Steps' if args.think and args.mode == 'watch' else ''}"
+                  f"{f'; each session reads for 0..{2 * args.think:g} s (mean {args.think:g} s) before a Step' if args.think and args.mode != 'watch' else ''}.")
     return 0
 
 

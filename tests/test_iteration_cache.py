@@ -146,3 +146,19 @@ def test_sessions_of_one_process_read_an_entry_once_and_each_trains_on_alone(tmp
     assert strip(second.records) == strip(fresh.records)
     for k, v in weights(fresh).items():
         torch.testing.assert_close(weights(second)[k], v, rtol=0, atol=0)
+
+
+def test_what_a_process_keeps_stays_under_its_bound_oldest_used_out_first():
+    from ifo.runtime import BoundedCache
+    kept = BoundedCache(100, size=len)
+    kept.put("a", b"x" * 40)
+    kept.put("b", b"x" * 40)
+    assert kept.get("a") == b"x" * 40  # "a" is now the most recently used
+    kept.put("b", b"x" * 50)  # a new value for a key replaces its size, it does not add to it
+    assert kept.get("a") is not None and kept.get("b") == b"x" * 50
+    kept.put("c", b"x" * 30)  # 120 bytes: the least recently used ("a") goes
+    assert kept.get("a") is None and kept.get("b") is not None and kept.get("c") is not None
+    kept.put("huge", b"x" * 500)  # larger than the bound: kept alone, since the newest always stays
+    assert kept.get("huge") is not None and kept.get("b") is None and kept.get("c") is None
+    kept.put("d", b"x" * 10)
+    assert kept.get("huge") is None and kept.get("d") is not None

@@ -3,7 +3,7 @@
 Thin by design: the saved run's records (ifo.checkpoint, read only) -> the same counter, slider,
 loop diagram and panels as the step page (ifo.ui.panels.show_records). Nothing here can change
 the teacher's run; "Make my own copy" copies it into the student's own runs, to train further.
-A small fragment looks at the run's latest checkpoint every few seconds and redraws the page
+A small fragment looks at the run's latest checkpoint every second and redraws the page
 when the teacher has stepped.
 """
 import streamlit as st
@@ -16,7 +16,9 @@ from ifo.ui.panels import PanelContext, show_records
 from ifo.ui.session import hidden
 
 limit_threads()
-FOLLOW_SECONDS = 2.0
+# How often each watching page asks for a newer checkpoint: a class sees the teacher's Step within about
+# this plus the thirty redraws (scripts/load_test.py --mode watch); one ask costs the server a small read.
+FOLLOW_SECONDS = 1.0
 hide = hidden()
 st.title("Watch a shared run")
 user = storage.current_user()

@@ -191,8 +191,9 @@ def show_records(records: list[dict], total: int, hide: set[str], sizes: dict, a
                                   help="Scrub back through past iterations: every chart and the diagram "
                                        "show the iteration you pick. The latest is the default.")
     record = next((r for r in records if r["iteration"] == shown), records[-1] if records else None)
-    if "diagram" not in hide:
-        diagram = shared(("diagram", content_key(record), tuple(sorted(sizes.items())), layout),
+    ctx = context(shown)
+    if "diagram" not in hide:  # a pure function of the records and the iteration shown, like the panels
+        diagram = shared(("diagram", ctx.records_key, shown, tuple(sorted(sizes.items())), layout),
                          lambda: loop_diagram(record, None, **sizes, layout=layout))
         diagram_area.plotly_chart(diagram, key=f"{key}.diagram", config=CHART_CONFIG)
         st.caption("The method's loop: the box being trained lights up; the numbers are those of the iteration "
@@ -202,7 +203,7 @@ def show_records(records: list[dict], total: int, hide: set[str], sizes: dict, a
         return None
     if "metrics" not in hide:
         metrics_row([r for r in records if shown is None or r["iteration"] <= shown])
-    draw_panels(active_panels(records, hide), context(shown))
+    draw_panels(active_panels(records, hide), ctx)
     return shown
 
 
