@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import re
 import sys
 import tempfile
@@ -123,7 +124,6 @@ class ProtocolSession:
     with the Step button's trigger, reading the deltas for the counter. Nothing is drawn."""
 
     COUNTER = re.compile(r"^#### Iteration (\d+) of \d+$")
-
     PAGE = "step"
 
     def __init__(self, ws, query: str):
@@ -131,50 +131,69 @@ class ProtocolSession:
         self.buttons: dict[str, str] = {}
         self.counter: int | None = None
         self.finished = False
+        self.page_hash = ""  # the page's script hash once the server named it (a browser sends it back)
+        self.fragment: tuple[float, str] | None = None  # (interval, id) of a fragment the server asks to rerun
+
+    @staticmethod
+    async def connect(url: str, timeout: float):
+        import websockets
+
+        return await websockets.connect(url.replace("http", "ws", 1) + "/_stcore/stream", subprotocols=["streamlit"],
+                                        max_size=None, open_timeout=timeout, ping_interval=None)
 
     @classmethod
     async def open(cls, url: str, query: str, timeout: float) -> "ProtocolSession":
-        import websockets
-
-        ws = await websockets.connect(url.replace("http", "ws", 1) + "/_stcore/stream", subprotocols=["streamlit"],
-                                      max_size=None, open_timeout=timeout, ping_interval=None)
-        session = cls(ws, query)
+        session = cls(await cls.connect(url, timeout), query)
         await session.rerun()
         await session.until(lambda: session.finished and session.counter is not None and "Step" in session.buttons,
                             timeout)
         return session
 
-    async def rerun(self, trigger: str | None = None) -> None:
+    async def rerun(self, trigger: str | None = None, fragment: str | None = None) -> None:
         from streamlit.proto.BackMsg_pb2 import BackMsg
 
         msg = BackMsg()
         msg.rerun_script.query_string, msg.rerun_script.page_name = self.query, self.PAGE
+        msg.rerun_script.page_script_hash = self.page_hash
         if trigger is not None:  # a click: only the button's state; the others keep theirs on the server
             widget = msg.rerun_script.widget_states.widgets.add()
             widget.id, widget.trigger_value = trigger, True
+        if fragment is not None:  # a fragment's timer
+            msg.rerun_script.fragment_id, msg.rerun_script.is_auto_rerun = fragment, True
         self.finished = False
         await self.ws.send(msg.SerializeToString())
 
-    async def until(self, done, timeout: float) -> None:
+    async def receive(self, timeout: float | None = None) -> None:
+        """Read one message from the server and keep what a page would: its URL, the buttons, the counter."""
         from streamlit.proto.ForwardMsg_pb2 import ForwardMsg
 
+        msg = ForwardMsg()
+        msg.ParseFromString(await asyncio.wait_for(self.ws.recv(), timeout))
+        kind = msg.WhichOneof("type")
+        if kind == "page_info_changed":
+            self.query = msg.page_info_changed.query_string  # ?user= and the settings, kept like a URL
+        elif kind == "navigation":
+            self.page_hash = msg.navigation.page_script_hash
+        elif kind == "auto_rerun":
+            self.fragment = (msg.auto_rerun.interval, msg.auto_rerun.fragment_id)
+        elif kind == "script_finished":
+            self.finished = True
+        elif kind == "delta" and msg.delta.WhichOneof("type") == "new_element":
+            element = msg.delta.new_element
+            what = element.WhichOneof("type")
+            if what == "button":
+                self.buttons[element.button.label] = element.button.id
+            elif what == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
+                self.counter = int(m.group(1))
+                self.shown(self.counter)
+
+    def shown(self, iteration: int) -> None:
+        """The counter shows `iteration` (a watching session notes when)."""
+
+    async def until(self, done, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         while not done():
-            raw = await asyncio.wait_for(self.ws.recv(), max(0.01, deadline - time.monotonic()))
-            msg = ForwardMsg()
-            msg.ParseFromString(raw)
-            kind = msg.WhichOneof("type")
-            if kind == "page_info_changed":
-                self.query = msg.page_info_changed.query_string  # ?user= and the settings, kept like a URL
-            elif kind == "script_finished":
-                self.finished = True
-            elif kind == "delta" and msg.delta.WhichOneof("type") == "new_element":
-                element = msg.delta.new_element
-                what = element.WhichOneof("type")
-                if what == "button":
-                    self.buttons[element.button.label] = element.button.id
-                elif what == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
-                    self.counter = int(m.group(1))
+            await self.receive(max(0.01, deadline - time.monotonic()))
 
     async def step(self, timeout: float) -> None:
         want = (self.counter or 0) + 1
@@ -188,54 +207,29 @@ class ProtocolSession:
 class WatchSession(ProtocolSession):
     """A student on the watch page of the teacher's shared run (`/watch?share=...`), spoken to as a browser's
     page would: the page's fragment is rerun on the timer the server asks for (its `auto_rerun` message, every
-    FOLLOW_SECONDS), and the whole page is redrawn when the teacher's run has a newer checkpoint. `seen[i]` is
-    when the counter first showed iteration i."""
+    FOLLOW_SECONDS of views/watch.py), and the whole page is redrawn when the teacher's run has a newer
+    checkpoint. `seen[i]` is when the counter first showed iteration i."""
 
     PAGE = "watch"
 
     def __init__(self, ws, query: str):
         super().__init__(ws, query)
         self.seen: dict[int, float] = {}
-        self.fragment: tuple[float, str] | None = None  # (interval, fragment id) of the page's auto-rerun
-        self.page_hash = ""
+
+    def shown(self, iteration: int) -> None:
+        self.seen.setdefault(iteration, time.perf_counter())
 
     async def listen(self) -> None:
         """Read the server's messages for as long as the session lives (a task of its own)."""
-        from streamlit.proto.ForwardMsg_pb2 import ForwardMsg
-
         while True:
-            msg = ForwardMsg()
-            msg.ParseFromString(await self.ws.recv())
-            kind = msg.WhichOneof("type")
-            if kind == "navigation":
-                self.page_hash = msg.navigation.page_script_hash  # a browser names its page by it from then on
-            elif kind == "auto_rerun":
-                self.fragment = (msg.auto_rerun.interval, msg.auto_rerun.fragment_id)
-            elif kind == "page_info_changed":
-                self.query = msg.page_info_changed.query_string
-            elif kind == "script_finished":
-                self.finished = True
-            elif kind == "delta" and msg.delta.WhichOneof("type") == "new_element":
-                element = msg.delta.new_element
-                if element.WhichOneof("type") == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
-                    self.counter = int(m.group(1))
-                    self.seen.setdefault(self.counter, time.perf_counter())
+            await self.receive()
 
     async def follow(self) -> None:
         """The browser's timer: the fragment asks again every interval (not while a run is still going)."""
-        from streamlit.proto.BackMsg_pb2 import BackMsg
-
         while True:
-            interval = self.fragment[0] if self.fragment else 1.0
-            await asyncio.sleep(interval)
-            if self.fragment is None or not self.finished:
-                continue
-            msg = BackMsg()
-            msg.rerun_script.query_string, msg.rerun_script.page_name = self.query, self.PAGE
-            msg.rerun_script.fragment_id, msg.rerun_script.is_auto_rerun = self.fragment[1], True
-            msg.rerun_script.page_script_hash = self.page_hash
-            self.finished = False
-            await self.ws.send(msg.SerializeToString())
+            await asyncio.sleep(self.fragment[0] if self.fragment else 1.0)
+            if self.fragment is not None and self.finished:
+                await self.rerun(fragment=self.fragment[1])
 
 
 async def run_watch_sessions(url: str, runs: Path, sessions: int, steps: int, step_timeout: float,
@@ -245,10 +239,6 @@ async def run_watch_sessions(url: str, runs: Path, sessions: int, steps: int, st
     last one (or a Step timeout went by) and `think` seconds more; a student's latency for iteration i runs
     from the teacher's click on Step (the training included) to the student's page showing it. Returns the
     students' results and a line on the teacher's own Steps."""
-    import os
-
-    import websockets
-
     results: dict[int, tuple[list, list]] = {k: ([], []) for k in range(sessions)}
     behind: list[float] = []
     idle: list[float] = []  # the server's CPU share while the class only watched
@@ -262,9 +252,8 @@ async def run_watch_sessions(url: str, runs: Path, sessions: int, steps: int, st
         from ifo.ui import storage
         token = storage.share_run(params[storage.USER_PARAM][0], params["run"][0])
         for k in range(1, sessions):
-            ws = await websockets.connect(url.replace("http", "ws", 1) + "/_stcore/stream", subprotocols=["streamlit"],
-                                          max_size=None, open_timeout=step_timeout, ping_interval=None)
-            student = WatchSession(ws, urllib.parse.urlencode({storage.SHARE_PARAM: token}))
+            student = WatchSession(await ProtocolSession.connect(url, step_timeout),
+                                   urllib.parse.urlencode({storage.SHARE_PARAM: token}))
             students.append(student)
             tasks += [asyncio.create_task(student.listen()), asyncio.create_task(student.follow())]
             await student.rerun()
@@ -419,8 +408,6 @@ def server_peak_mib(url: str) -> float | None:
 
 def server_cpu_seconds(url: str) -> float | None:
     """CPU seconds the app server has used so far (user + system, all its threads)."""
-    import os
-
     try:
         fields = (server_proc(url) / "stat").read_text().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
