@@ -6,8 +6,6 @@ import threading
 from collections import OrderedDict
 from typing import Any, Callable
 
-import torch
-
 
 def limit_threads(n: int | None = None) -> int:
     """Use `n` torch threads (default: IFO_TORCH_THREADS, else 1). Every `Run` calls it, so the library
@@ -16,6 +14,8 @@ def limit_threads(n: int | None = None) -> int:
     The networks here are tiny: extra threads mostly spin and, with other processes or
     sessions on the same two cores, made an iteration 4-50x slower in our measurements.
     """
+    import torch  # here, so the caches below come without torch (the maze environment uses them)
+
     n = int(n if n is not None else os.environ.get("IFO_TORCH_THREADS", "1"))
     if torch.get_num_threads() != n:
         torch.set_num_threads(n)
@@ -23,20 +23,21 @@ def limit_threads(n: int | None = None) -> int:
 
 
 class BoundedCache:
-    """What a process keeps for every session (I_pre's random transitions, the cache entries it read),
-    oldest-used out once `size(value)` sums past `max_bytes` (the newest always stays). Thread-safe;
-    a caller that computes a missing value holds `lock` around get-compute-put if it must be done once."""
+    """What a process keeps for every session (I_pre's random transitions, the cache entries it read,
+    figures, maze backgrounds), oldest-used out once `size(value)` sums past `limit` (the newest always
+    stays). Without `size` each value counts 1, so `limit` is a number of entries. Thread-safe; a caller
+    that computes a missing value holds `lock` around get-compute-put if it must be done once."""
 
-    def __init__(self, max_bytes: int, size: Callable[[Any], int]):
-        self.max_bytes, self.size = max_bytes, size
+    def __init__(self, limit: int, size: Callable[[Any], int] = lambda value: 1):
+        self.limit, self.size = limit, size
         self.lock = threading.RLock()
         self._values: OrderedDict = OrderedDict()  # key -> (value, its size)
         self._total = 0
 
-    def get(self, key):
+    def get(self, key, default=None):
         with self.lock:
             if key not in self._values:
-                return None
+                return default
             self._values.move_to_end(key)
             return self._values[key][0]
 
@@ -46,8 +47,21 @@ class BoundedCache:
                 self._total -= self._values.pop(key)[1]
             self._values[key] = (value, self.size(value))
             self._total += self._values[key][1]
-            while len(self._values) > 1 and self._total > self.max_bytes:
+            while len(self._values) > 1 and self._total > self.limit:
                 self._total -= self._values.popitem(last=False)[1][1]
+
+    def get_or_build(self, key, build: Callable[[], Any]):
+        """The value kept for `key`, else `build()`'s, kept. Built outside the lock, so sessions build
+        different values in parallel (two may build the same one at once: the last put stays)."""
+        missing = object()
+        value = self.get(key, missing)
+        if value is missing:
+            value = build()
+            self.put(key, value)
+        return value
+
+    def __len__(self) -> int:
+        return len(self._values)
 
     def clear(self) -> None:
         with self.lock:

@@ -73,10 +73,10 @@ def main() -> int:
     from ifo.ui import panels
 
     limit_threads()
-    shared = panels.MAX_SHARED_FIGURES
+    shared = panels._figures.limit
     rows = {}
     for label, size in (("figures shared", shared), ("figures built per session", 0)):
-        panels.MAX_SHARED_FIGURES = size
+        panels._figures.limit = size  # 0: only the figure last built is kept, so each session builds its own
         collected: dict[str, list[float]] = {}
         for _ in range(a.repeats):
             panels._figures.clear()
@@ -86,7 +86,7 @@ def main() -> int:
                 for name, values in times.items():
                     collected.setdefault(name, []).extend(values)
         rows[label] = {name: statistics.median(values) for name, values in collected.items()}
-    panels.MAX_SHARED_FIGURES = shared
+    panels._figures.limit = shared
     names = list(next(iter(rows.values())))
     load = os.getloadavg()[0]
     print(f"### Server time per action ({'real sizes' if a.full else 'IFO_LAB_FAST=1'}; the step page's default "

@@ -499,6 +499,30 @@ def test_a_read_only_share_shows_the_run_and_a_copy_to_play_with():
     assert [r.iterations_done for r in storage.list_runs(owner)] == [2]  # the teacher's run is untouched
 
 
+def test_a_student_who_looks_elsewhere_finds_the_watched_run_again():
+    """The sidebar's link and the browser's Back button reach /watch without `?share=`: the page
+    shows the run this session watched, and puts the token back in the address bar."""
+    from ifo.ui import storage
+
+    teacher = open_step_page()
+    teacher.button(key="step").click().run()
+    token = next(c.value for c in teacher.code if "/watch?share=" in c.value).rsplit("=", 1)[1]
+    student = open_app(share=token)
+    student.switch_page("views/watch.py").run()
+    assert counter(student) == "Iteration 1 of 10"
+
+    student.query_params.pop(storage.SHARE_PARAM)  # navigation drops the link's query
+    student.switch_page("views/runs.py").run()
+    student.switch_page("views/watch.py").run()
+    assert not student.exception and not student.error
+    assert counter(student) == "Iteration 1 of 10"
+    assert student.query_params[storage.SHARE_PARAM] in (token, [token])
+
+    student.query_params[storage.SHARE_PARAM] = "0" * 32  # a stale link the student opens on purpose
+    student.run()
+    assert "Could not open this shared run" in student.error[0].value  # not silently the old run
+
+
 def test_a_bad_share_link_says_so():
     at = open_app(share="0" * 32)
     at.switch_page("views/watch.py").run()

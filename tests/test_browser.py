@@ -407,6 +407,41 @@ def test_share_read_only_and_watch_from_another_browser(app, browser, page):
     student.context.close()
 
 
+def test_a_student_who_looks_elsewhere_comes_back_to_the_watched_run(app, browser, page):
+    """A watching student opens another page by the sidebar, then comes back with the browser's Back
+    button and by the sidebar: both times the teacher's run is there (the links carry no `?share=`)."""
+    teacher = browser.new_context(viewport={"width": 1400, "height": 1000}).new_page()
+    teacher.set_default_timeout(LONG_MS)
+    open_app(teacher, app, "step")
+    step(teacher, 1, 10)
+    teacher.get_by_role("button", name="Share read-only").click()
+    link = teacher.locator("[data-testid='stCode']").filter(has_text="/watch?share=").inner_text().strip()
+    token = link.rsplit("=", 1)[1]
+
+    page.goto(link)  # the student (this test's screenshot)
+    wait_idle(page)
+    expect(counter(page)).to_have_text("Iteration 1 of 10")
+    go_by_sidebar(page, "Your runs")
+    expect(page.get_by_role("heading", name="Your runs")).to_be_visible()
+    page.go_back()
+    wait_idle(page)
+    expect(page.get_by_role("heading", name="Watch a shared run")).to_be_visible()
+    expect(counter(page)).to_have_text("Iteration 1 of 10")
+    expect(page.get_by_text("Open the link your teacher shared")).to_have_count(0)
+    expect(page.locator("[data-testid='stSidebarNavLink'][aria-current='page']")).to_have_count(1)
+    expect(page.locator("[data-testid='stSidebarNavLink'][aria-current='page']")).to_contain_text("Watch a shared run")
+    assert query(page).get("share") == token  # the address bar is the link again
+
+    go_by_sidebar(page, "Welcome")
+    go_by_sidebar(page, "Watch a shared run")
+    expect(counter(page)).to_have_text("Iteration 1 of 10")
+    teacher.keyboard.press("Escape")
+    step(teacher, 2, 10)  # still following the teacher
+    expect(counter(page)).to_have_text("Iteration 2 of 10", timeout=LONG_MS)
+    expect(error_boxes(page)).to_have_count(0)
+    teacher.context.close()
+
+
 # ----------------------------------------------------------------------------- 11. a lesson
 def test_a_lesson_from_the_landing_page(app, page):
     """The landing page's first lesson opens the step page with its settings; a Step trains it."""

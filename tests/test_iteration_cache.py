@@ -162,3 +162,17 @@ def test_what_a_process_keeps_stays_under_its_bound_oldest_used_out_first():
     assert kept.get("huge") is not None and kept.get("b") is None and kept.get("c") is None
     kept.put("d", b"x" * 10)
     assert kept.get("huge") is None and kept.get("d") is not None
+
+
+def test_a_cache_bounded_by_count_builds_each_value_once_and_keeps_a_none():
+    from ifo.runtime import BoundedCache
+    kept, built = BoundedCache(2), []
+
+    def build(key):
+        built.append(key)
+        return None if key == "empty" else key.upper()  # a figure that does not apply is None, and kept
+
+    assert [kept.get_or_build(k, lambda k=k: build(k)) for k in ("a", "empty", "a", "empty")] == ["A", None, "A", None]
+    assert built == ["a", "empty"]
+    kept.get_or_build("b", lambda: build("b"))  # a third entry: the least recently used ("a") goes
+    assert len(kept) == 2 and kept.get("a") is None and kept.get("empty", "gone") is None

@@ -19,10 +19,14 @@ limit_threads()
 # How often each watching page asks for a newer checkpoint: a class sees the teacher's Step within about
 # this plus the thirty redraws (scripts/load_test.py --mode watch); one ask costs the server a small read.
 FOLLOW_SECONDS = 1.0
+WATCHED = "watch.token"  # the shared run this session watches
 hide = hidden()
 st.title("Watch a shared run")
 user = storage.current_user()
-token = st.query_params.get(storage.SHARE_PARAM)
+# The link's token, else the run this session last watched: the sidebar's link and the browser's Back
+# button come here without `?share=` (Streamlit's navigation drops query params), and a student who
+# looked at another page mid-lesson should find the teacher's run again, not an empty page.
+token = st.query_params.get(storage.SHARE_PARAM) or st.session_state.get(WATCHED)
 if not token:
     st.info("Open the link your teacher shared (it ends with `?share=...`) to watch their run here.")
     st.stop()
@@ -31,8 +35,13 @@ try:
     config = checkpoint.read_config(saved.path)
     latest = checkpoint.latest(saved.path)
 except (ValueError, FileNotFoundError, OSError) as e:  # a bad or stale link, a deleted or damaged run
+    if st.session_state.get(WATCHED) == token:
+        del st.session_state[WATCHED]  # not offered again
     st.error(f"Could not open this shared run: {getattr(e, 'reason', None) or e}")
     st.stop()
+st.session_state[WATCHED] = token
+if st.query_params.get(storage.SHARE_PARAM) != token:
+    st.query_params[storage.SHARE_PARAM] = token  # the address bar is the link again, to pass on or reload
 
 key = f"watch.{token}"
 if st.session_state.get(f"{key}.checkpoint") != latest:  # read the records once per checkpoint

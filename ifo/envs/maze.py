@@ -13,8 +13,7 @@ pools: "train" for demonstrations and learning, "eval" for measuring generalisat
 from __future__ import annotations
 
 import os
-import threading
-from collections import OrderedDict, deque
+from collections import deque
 from functools import lru_cache
 from math import isqrt
 
@@ -24,6 +23,8 @@ import numpy as np
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # draw off-screen, never open a window
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import pygame  # noqa: E402  (must come after the SDL setting)
+
+from ifo.runtime import BoundedCache  # noqa: E402
 
 # Actions; each leaves its cell through one side.
 N, S, W, E = 0, 1, 2, 3
@@ -279,9 +280,7 @@ def random_return(layout: np.ndarray, size: int | None = None, episodes: int = 2
 
 # ------------------------------------------------------------------------ rendering
 
-_BACKGROUND_CACHE_SIZE = 512
-_backgrounds: OrderedDict[tuple, tuple] = OrderedDict()
-_backgrounds_lock = threading.Lock()
+_backgrounds = BoundedCache(512)  # drawn backgrounds, so many layouts cannot eat the memory
 
 
 def _cell_edges(size: int, image_size: int) -> list[int]:
@@ -325,19 +324,9 @@ def _draw_background(layout: np.ndarray, image_size: int) -> tuple[pygame.Surfac
 
 
 def _background(layout: np.ndarray, image_size: int, key: bytes | None = None):
-    """Cached background; a bounded LRU so many layouts cannot eat the memory."""
+    """The layout's background, drawn once per (size, image size, layout)."""
     cache_key = (layout.shape[0], image_size, layout.tobytes() if key is None else key)
-    with _backgrounds_lock:
-        hit = _backgrounds.get(cache_key)
-        if hit is not None:
-            _backgrounds.move_to_end(cache_key)
-            return hit
-    drawn = _draw_background(layout, image_size)
-    with _backgrounds_lock:
-        _backgrounds[cache_key] = drawn
-        while len(_backgrounds) > _BACKGROUND_CACHE_SIZE:
-            _backgrounds.popitem(last=False)
-    return drawn
+    return _backgrounds.get_or_build(cache_key, lambda: _draw_background(layout, image_size))
 
 
 def _frame(background, cell: int) -> np.ndarray:
@@ -495,18 +484,10 @@ class ShortestPathExpert:
     meta = {"kind": "shortest-path"}
 
     def __init__(self, cache_size: int = 4096):
-        self.cache_size = cache_size
-        self._plans: OrderedDict[bytes, np.ndarray] = OrderedDict()
+        self._plans = BoundedCache(cache_size)  # layout bytes -> the action towards the goal, per cell
 
     def _plan(self, layout: np.ndarray) -> np.ndarray:
-        key = layout.tobytes()
-        plan = self._plans.get(key)
-        if plan is None:
-            plan = _actions_towards_goal(layout)
-            self._plans[key] = plan
-            if len(self._plans) > self.cache_size:
-                self._plans.popitem(last=False)
-        return plan
+        return self._plans.get_or_build(layout.tobytes(), lambda: _actions_towards_goal(layout))
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -14,6 +12,7 @@ import streamlit as st
 
 from ifo.ui.export import chart_downloads, export_note, slide_pack_download
 from ifo.figure_registry import EnvView
+from ifo.runtime import BoundedCache
 
 # The chart's camera button downloads an SVG drawn by the browser: slides, no server work.
 CHART_CONFIG = {"toImageButtonOptions": {"format": "svg"}, "displaylogo": False}
@@ -98,23 +97,12 @@ class PanelContext:
 # (its students take the teacher's iterations from the cache), and every rerun of a page (a scrub back
 # and forth, a Play's ticks) draws them again: so each is built once per server process and shared.
 # Streamlit and the downloads only read a figure (to_dict, a copy for the slide theme).
-MAX_SHARED_FIGURES = 256
-_figures: "OrderedDict[tuple, go.Figure | None]" = OrderedDict()
-_figures_lock = threading.Lock()
+_figures = BoundedCache(256)  # figures, by what each is a pure function of
 
 
 def shared(key: tuple, build: Callable[[], go.Figure | None]) -> go.Figure | None:
     """`build()`, once per `key` (what the figure is a pure function of) across every session of this server."""
-    with _figures_lock:
-        if key in _figures:
-            _figures.move_to_end(key)
-            return _figures[key]
-    fig = build()  # built outside the lock: sessions draw in parallel
-    with _figures_lock:
-        _figures[key] = fig
-        while len(_figures) > MAX_SHARED_FIGURES:
-            _figures.popitem(last=False)
-    return fig
+    return _figures.get_or_build(key, build)
 
 
 def shared_figure(panel, ctx: PanelContext) -> go.Figure | None:
