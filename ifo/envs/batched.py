@@ -55,6 +55,7 @@ class _BatchedStepper:
         self.step_limit: int = gym.spec(self.gym_id).max_episode_steps
         self.state = np.zeros((n, self.state_dim), dtype=np.float64)
         self.steps = np.zeros(n, dtype=np.int64)
+        self._no_infos = [{}] * n  # gymnasium's info dicts, empty here (read only: run_episodes copies them)
 
     def reset(self, seeds: Sequence[int]) -> np.ndarray:
         if len(seeds) != self.n:
@@ -71,12 +72,20 @@ class _BatchedStepper:
 
     def step(self, idx: np.ndarray, actions: np.ndarray):
         idx = np.asarray(idx, dtype=np.int64)
-        state, rewards, terminated = self._dynamics(self.state[idx], np.asarray(actions, dtype=np.int64))
-        self.state[idx] = state
-        self.steps[idx] += 1
+        actions = np.asarray(actions, dtype=np.int64)
+        if len(idx) == self.n:  # every episode steps (idx is sorted and distinct): no gathers, no scatters
+            state, rewards, terminated = self._dynamics(self.state, actions)
+            self.state = state
+            self.steps += 1
+            steps = self.steps
+        else:
+            state, rewards, terminated = self._dynamics(self.state[idx], actions)
+            self.state[idx] = state
+            self.steps[idx] += 1
+            steps = self.steps[idx]
         # gymnasium's TimeLimit sets truncated at the limit even when that step also terminates
-        truncated = self.steps[idx] >= self.step_limit
-        return self._obs(state), rewards, terminated, truncated, [{} for _ in range(len(idx))]
+        truncated = steps >= self.step_limit
+        return self._obs(state), rewards, terminated, truncated, self._no_infos[:len(idx)]
 
     def render(self, i: int) -> np.ndarray:
         with _SHARED_ENV_LOCK:

@@ -147,7 +147,9 @@ def run_episodes(pool: EnvPool, act: ActFn, seeds: Sequence[int], record: bool =
     frames = [stepper.render(0)] if render_first else []
     while alive.any():
         idx = np.flatnonzero(alive)
-        actions, map_actions = act(obs[idx])
+        every = len(idx) == n  # no episode has ended yet: the arrays themselves, no copies by index
+        here = obs if every else obs[idx]
+        actions, map_actions = act(here)
         actions = np.asarray(actions, dtype=np.int64)
         o2, r, term, trunc, infos = stepper.step(idx, actions)
         rets[idx] += r
@@ -173,14 +175,17 @@ def run_episodes(pool: EnvPool, act: ActFn, seeds: Sequence[int], record: bool =
         if render_first and idx[0] == 0:  # episode 0 took this step
             frames.append(stepper.render(0))
         if record:
-            buf_s.append(obs[idx])
+            buf_s.append(here)
             buf_a.append(actions)
             buf_s2.append(o2)
             buf_ep.append(idx)
             buf_x.append(actions != np.asarray(map_actions))
             buf_r.append(r)
-        obs = obs.copy()
-        obs[idx] = o2
+        if every:
+            obs = o2  # a fresh array each step: nothing above keeps writing into it
+        else:
+            obs = obs.copy()
+            obs[idx] = o2
     goals = np.array([pool.spec.goal(e) for e in episodes], dtype=bool)
     if record and buf_s:
         order = np.argsort(np.concatenate(buf_ep), kind="stable")  # group by episode, time order kept
