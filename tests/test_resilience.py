@@ -68,10 +68,14 @@ def test_the_shipped_levels_match_the_thesis_and_get_worse_level_by_level(env):
     for k in (1, 2, 3, 4, 5):
         assert (ROOT / "assets" / "experts" / f"{env}-level{k}.npz").exists()
         assert (ROOT / "assets" / "demos" / (f"{env}.npz" if k == 1 else f"{env}-level{k}.npz")).exists()
-    expert = load_expert(env, level=5)  # a level's weights reproduce its AER on the evaluation seeds
+    expert = load_expert(env, level=5)  # a level's weights reproduce its AER on the evaluation seeds ...
     from ifo.experts.train import _reference_aer
 
-    assert _reference_aer(get_env(env), expert).mean() == pytest.approx(infos[4]["aer"], abs=1e-3)
+    # ... to 1 % of the expert-random span, not to the digit: float32 kernels differ between CPUs, a near-tie
+    # argmax flips and Acrobot's chaos carries it through the episode (level 5: -240.17 where it was made,
+    # -240.68 and -240.99 on two other machines, -239.06 in float64); a wrong file is off by a gap between
+    # levels, 7 or more times this
+    assert _reference_aer(get_env(env), expert).mean() == pytest.approx(infos[4]["aer"], abs=0.01 * span)
 
 
 def test_level_demonstrations_load_with_their_actions_and_their_reference():
