@@ -52,6 +52,18 @@ def landing() -> None:
     lessons(step_page)
 
 
+@st.cache_resource(show_spinner=False)
+def warm_up_process() -> bool:
+    """Once per server process, after its first page is drawn (the teacher reads it): the imports the
+    step page needs and torch's first-Adam-step cost, which the class's first Step would pay otherwise."""
+    import ifo.run  # noqa: F401  the training library: torch, gymnasium, the learners
+    import ifo.ui.panels  # noqa: F401  the figures: plotly
+    from ifo.components.learning import warm_up
+
+    warm_up()
+    return True
+
+
 # One notion of "who is this" for every page: the `?user=` id, else the one this session already has,
 # else a new one; written back into the URL on every page, because sidebar links drop query params.
 storage.current_user()
@@ -63,3 +75,4 @@ st.navigation([home, step_page,
                st.Page("views/watch.py", title="Watch a shared run", icon=":material/visibility:",
                        url_path="watch"),
                st.Page("views/resilience.py", title="Sub-optimal experts", icon=":material/trending_down:", url_path="resilience")]).run()
+warm_up_process()

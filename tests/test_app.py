@@ -523,6 +523,21 @@ def test_a_student_who_looks_elsewhere_finds_the_watched_run_again():
     assert "Could not open this shared run" in student.error[0].value  # not silently the old run
 
 
+def test_the_first_page_of_a_server_process_pays_the_first_steps_one_time_costs(tmp_path):
+    """After the first page of a fresh process is drawn, the training library is imported and torch's
+    first-Adam-step cost is paid, so the class's first Step does not wait for them."""
+    import subprocess
+    import sys
+
+    probe = ("import sys; from streamlit.testing.v1 import AppTest; "
+             f"at = AppTest.from_file({str(ROOT / 'app.py')!r}, default_timeout=120); at.run(); "
+             "assert not at.exception, at.exception; "
+             "print('torch._dynamo' in sys.modules, 'ifo.run' in sys.modules, 'ifo.ui.panels' in sys.modules)")
+    env = {**__import__("os").environ, "IFO_LAB_RUNS": str(tmp_path / "runs"), "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=300)
+    assert out.stdout.split()[-3:] == ["True", "True", "True"], out.stdout + out.stderr
+
+
 def test_a_bad_share_link_says_so():
     at = open_app(share="0" * 32)
     at.switch_page("views/watch.py").run()

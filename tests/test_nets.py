@@ -184,3 +184,16 @@ def test_fit_trains_an_idm_exactly_as_autograd_and_adam_would(attention, layer_n
     for p, q in zip(mine.parameters(), ref.parameters()):
         for key in ("exp_avg", "exp_avg_sq", "step"):
             assert torch.equal(my_opt.state[p][key], ref_opt.state[q][key]), key
+
+
+def test_warming_up_training_draws_no_random_numbers():
+    """The app warms a new server process up (ifo.components.learning.warm_up) while sessions may be
+    training: it must not move any random stream, or the same seed would stop giving the same numbers."""
+    import numpy as np
+
+    from ifo.components.learning import warm_up
+
+    torch_state, numpy_state = torch.get_rng_state().clone(), np.random.get_state()[1].copy()
+    warm_up()
+    assert torch.equal(torch.get_rng_state(), torch_state)
+    assert (np.random.get_state()[1] == numpy_state).all()

@@ -32,6 +32,15 @@ def make_optimizer(module: torch.nn.Module, lr: float) -> torch.optim.Optimizer:
     return torch.optim.Adam(module.parameters(), lr=lr, fused=True)
 
 
+def warm_up() -> None:
+    """Pay a process's one-time cost of training now: torch loads its compiler (torch._dynamo) at the
+    first Adam step of a process, 1-4 s on this machine. The app calls this once its first page is
+    drawn, so the class's first Step does not wait for it. No random numbers are drawn."""
+    weight = torch.nn.Parameter(torch.zeros(1))
+    weight.grad = torch.zeros(1)
+    torch.optim.Adam([weight], lr=1e-3, fused=True).step()  # as `make_optimizer`'s Adam steps
+
+
 def fit(forward: Forward, module: torch.nn.Module, optimizer: torch.optim.Optimizer,
         inputs: Sequence[np.ndarray], targets: np.ndarray, epochs: int, batch_size: int,
         generator: torch.Generator, class_weights: np.ndarray | None = None,
