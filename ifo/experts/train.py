@@ -9,9 +9,11 @@ network to a plain `ExpertMLP` (.npz arrays, no pickles).
     python -m ifo.experts.train --env all --eval-only  # evaluate the shipped files
     python -m ifo experts train --env cartpole --level 2-5   # the sub-optimal experts of Table 7.1
 
-Levels 2-5 come from ONE training run per environment (same algorithm, hyperparameters and seed
-as level 1), checked greedily every `LEVEL_EVAL_EVERY` steps on the 100 evaluation episodes (seeds
-10^9 + k, the ones every learner and every reference in assets/references.json is measured on) and
+Levels 2-5 come from one training run per environment (same algorithm and hyperparameters as
+level 1, and by default its seed; `--seed` picks another run and `--level` the levels it replaces:
+LunarLander's levels 3 and 4 come from seed 2, whose checks fall inside their windows; levels.json
+records each level's seed), checked greedily every `LEVEL_EVAL_EVERY` steps on the 100 evaluation
+episodes (seeds 10^9 + k, the ones every learner and every reference in assets/references.json is measured on) and
 stopped once it reaches the thesis's level-1 AER. Each level keeps the check whose AER meets its
 Table 7.1 threshold most closely (the lowest AER at or above it) if that is within 5% of the
 random-to-Expert¹ range, else the check closest to the thesis's AER (`select_levels`): that AER is
