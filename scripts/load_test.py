@@ -129,6 +129,7 @@ class ProtocolSession:
     def __init__(self, ws, query: str):
         self.ws, self.query = ws, query
         self.buttons: dict[str, str] = {}
+        self.button_fragments: dict[str, str] = {}  # label -> the fragment a button is drawn in ("" for none)
         self.counter: int | None = None
         self.finished = False
         self.page_hash = ""  # the page's script hash once the server named it (a browser sends it back)
@@ -149,7 +150,7 @@ class ProtocolSession:
                             timeout)
         return session
 
-    async def rerun(self, trigger: str | None = None, fragment: str | None = None) -> None:
+    async def rerun(self, trigger: str | None = None, fragment: str | None = None, timer: bool = False) -> None:
         from streamlit.proto.BackMsg_pb2 import BackMsg
 
         msg = BackMsg()
@@ -158,8 +159,8 @@ class ProtocolSession:
         if trigger is not None:  # a click: only the button's state; the others keep theirs on the server
             widget = msg.rerun_script.widget_states.widgets.add()
             widget.id, widget.trigger_value = trigger, True
-        if fragment is not None:  # a fragment's timer
-            msg.rerun_script.fragment_id, msg.rerun_script.is_auto_rerun = fragment, True
+        if fragment:  # a fragment's timer, or a click on a widget drawn in a fragment: that fragment only
+            msg.rerun_script.fragment_id, msg.rerun_script.is_auto_rerun = fragment, timer
         self.finished = False
         await self.ws.send(msg.SerializeToString())
 
@@ -183,6 +184,7 @@ class ProtocolSession:
             what = element.WhichOneof("type")
             if what == "button":
                 self.buttons[element.button.label] = element.button.id
+                self.button_fragments[element.button.label] = msg.delta.fragment_id
             elif what == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
                 self.counter = int(m.group(1))
                 self.shown(self.counter)
@@ -197,7 +199,7 @@ class ProtocolSession:
 
     async def step(self, timeout: float) -> None:
         want = (self.counter or 0) + 1
-        await self.rerun(self.buttons["Step"])
+        await self.rerun(self.buttons["Step"], fragment=self.button_fragments.get("Step"))
         await self.until(lambda: self.counter == want and self.finished, timeout)
 
     async def close(self) -> None:
@@ -229,7 +231,7 @@ class WatchSession(ProtocolSession):
         while True:
             await asyncio.sleep(self.fragment[0] if self.fragment else 1.0)
             if self.fragment is not None and self.finished:
-                await self.rerun(fragment=self.fragment[1])
+                await self.rerun(fragment=self.fragment[1], timer=True)
 
 
 async def run_watch_sessions(url: str, runs: Path, sessions: int, steps: int, step_timeout: float,

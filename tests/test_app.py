@@ -642,3 +642,21 @@ def test_a_link_may_name_choices_as_the_configuration_does():
     assert (cfg.env, cfg.method, cfg.maze_eval_layouts) == ("maze3", "iupe", "demonstration")
     at.run()
     assert not at.exception and slot(at).run.config.env == "maze3"  # and it stays so
+
+
+def test_slide_downloads_under_each_chart_appear_when_asked_for():
+    """Under the charts, the SVG/PNG/PDF buttons appear once the teacher turns them on (the slide pack, with
+    every chart, is there either way); a class's pages stay light until then."""
+    from ifo import export
+
+    if export.export_problem() is not None:
+        pytest.skip(export.export_problem())
+    at = open_step_page()
+    at.button("step").click().run()
+    labels = lambda: [b.proto.label for b in at.get("download_button")]  # noqa: E731
+    assert labels() == ["Slide pack (ZIP)"]
+    at.toggle("export.per_chart").set_value(True).run()
+    assert not at.exception
+    charts = [k for k in chart_keys(at) if k.startswith("panel.")]
+    assert charts and labels().count("SVG") == labels().count("PNG") == labels().count("PDF") == len(charts)
+    assert labels()[-1] == "Slide pack (ZIP)"

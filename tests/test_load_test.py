@@ -16,3 +16,43 @@ def test_sessions_watching_a_shared_run_see_every_step_of_the_teacher():
     assert "| 4 / 4 |" in res.stdout, res.stdout  # two watchers saw both of the teacher's Steps
     assert "Errors:" not in res.stdout
     assert "The teacher's own Steps" in res.stdout and "2 sessions watch its shared run" in res.stdout
+
+
+def test_a_step_redraws_the_run_not_the_whole_page(tmp_path):
+    """Pressing Step reruns the part of the step page that shows the run: the counter moves on and the buttons
+    are drawn again, while the page's title and the settings in the sidebar are not sent again (each Step of
+    each student in a class would pay for them). Spoken to as a browser's page would (scripts/load_test.py)."""
+    import asyncio
+
+    sys.path.insert(0, str(ROOT))
+    from scripts.app_server import serve_app
+    from scripts.load_test import ProtocolSession, step_query
+
+    async def journey(url):
+        from streamlit.proto.ForwardMsg_pb2 import ForwardMsg
+
+        session = await ProtocolSession.open(url, step_query("classic", 0), 120)
+        sent: list[str] = []
+        original = session.ws.recv
+
+        async def recv():  # note every element the server sends from here on
+            data = await original()
+            msg = ForwardMsg()
+            msg.ParseFromString(data)
+            if msg.WhichOneof("type") == "delta" and msg.delta.WhichOneof("type") == "new_element":
+                sent.append(msg.delta.new_element.WhichOneof("type"))
+            return data
+
+        session.ws.recv = recv
+        try:
+            for want in (1, 2):
+                sent.clear()
+                await session.step(120)
+                assert session.counter == want
+                assert "button" in sent, sent  # Step, Run N, Run to the end, Reset: drawn for the new state
+                assert "selectbox" not in sent and "heading" not in sent, sent  # no settings, no title
+        finally:
+            await session.close()
+
+    with serve_app(tmp_path / "server.log", {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(tmp_path / "runs")}) as url:
+        asyncio.run(journey(url))

@@ -48,13 +48,52 @@ if run is None:
     st.button("Try again", on_click=slot.request_reset, key="retry")
     st.stop()
 
-controls = st.container()
 sizes = run.learner.sizes()
 boxes = {p.name: p.box for p in run.learner.phases}
+timer = slot.tick  # the fragment's run_every, fixed for this page run
 
 
-@st.fragment(run_every=slot.tick)
+def controls():
+    st.markdown(f"**Current run:** {slot.describe()}")
+    done = run.finished or slot.state.pending_branch is not None  # answer the branch question first
+    step, n_col, play, to_end, reset = st.columns([1, 1, 1, 1.3, 1], vertical_alignment="bottom")
+    step.button("Step", key="step", type="primary", on_click=slot.request_step, disabled=done,
+                help="Train one iteration.", width="stretch")
+    n_col.number_input("N", min_value=1, max_value=1000, value=5, step=1, key="run_n",
+                       help="How many iterations Run N trains, one after another.")
+    if slot.playing:
+        play.button("Pause", key="pause", on_click=slot.pause, width="stretch",
+                    help="Stop after the iteration that is training now.")
+    else:
+        play.button("Run N", key="run", on_click=lambda: slot.request_run(st.session_state["run_n"]),
+                    disabled=done, width="stretch", help="Play: train the next N iterations, one after another.")
+    to_end.button("Run to the end", key="run_all", on_click=slot.request_run_to_end,
+                  disabled=done or slot.playing, width="stretch",
+                  help=f"Play every remaining iteration (up to {run.config.iterations}); Pause stops it.")
+    reset.button("Reset", key="reset", on_click=slot.request_reset, width="stretch",
+                 help="Start this run again from scratch with the current settings.")
+    with st.popover("Share read-only", icon=":material/share:"):
+        link = slot.share_link()
+        if link is None:
+            st.caption("Step once first: a run can be shared once it is saved.")
+        else:
+            st.code(link, language=None)
+            st.caption("Students who open this link watch this run (they cannot change it) and see your Steps "
+                       "as they happen; each can make their own copy to play with.")
+    if done:
+        st.success(f"The run has done all {run.config.iterations} iterations. Press Reset to start again, "
+                   "or raise the number of iterations in the sidebar to continue.")
+
+
+# The buttons live in the fragment, so a Step reruns the fragment only: the title, the settings and
+# the sidebar are not drawn again for each Step (what thirty students pressing Step at once queue on).
+# What the fragment cannot do on its own goes to a full rerun: a Reset (a new run, built above), and
+# starting or stopping Play (the fragment's timer is set when the page runs).
+@st.fragment(run_every=timer)
 def live():
+    if slot.state.reset_requested or slot.tick != timer:
+        st.rerun()
+    controls_area = st.container()
     progress, count_area, scrub_area, diagram_area = st.empty(), st.empty(), st.empty(), st.empty()
     last = {"phase": None, "draws": 0}
 
@@ -71,6 +110,9 @@ def live():
 
     if slot.advance(progress, on_phase):  # a Play just ended: redraw the buttons, stop the timer
         st.rerun()
+    if "controls" not in hide:
+        with controls_area:  # drawn after the iteration, so Step's state is the run's new one
+            controls()
     slot.sync_url()
     if slot.state.step_error:
         st.error(slot.state.step_error)
@@ -92,38 +134,6 @@ def live():
 
 
 live()
-
-if "controls" not in hide:
-    with controls:
-        st.markdown(f"**Current run:** {slot.describe()}")
-        done = run.finished or slot.state.pending_branch is not None  # answer the branch question first
-        step, n_col, play, to_end, reset = st.columns([1, 1, 1, 1.3, 1], vertical_alignment="bottom")
-        step.button("Step", key="step", type="primary", on_click=slot.request_step, disabled=done,
-                    help="Train one iteration.", width="stretch")
-        n_col.number_input("N", min_value=1, max_value=1000, value=5, step=1, key="run_n",
-                           help="How many iterations Run N trains, one after another.")
-        if slot.playing:
-            play.button("Pause", key="pause", on_click=slot.pause, width="stretch",
-                        help="Stop after the iteration that is training now.")
-        else:
-            play.button("Run N", key="run", on_click=lambda: slot.request_run(st.session_state["run_n"]),
-                        disabled=done, width="stretch", help="Play: train the next N iterations, one after another.")
-        to_end.button("Run to the end", key="run_all", on_click=slot.request_run_to_end,
-                      disabled=done or slot.playing, width="stretch",
-                      help=f"Play every remaining iteration (up to {run.config.iterations}); Pause stops it.")
-        reset.button("Reset", key="reset", on_click=slot.request_reset, width="stretch",
-                     help="Start this run again from scratch with the current settings.")
-        with st.popover("Share read-only", icon=":material/share:"):
-            link = slot.share_link()
-            if link is None:
-                st.caption("Step once first: a run can be shared once it is saved.")
-            else:
-                st.code(link, language=None)
-                st.caption("Students who open this link watch this run (they cannot change it) and see your Steps "
-                           "as they happen; each can make their own copy to play with.")
-        if done:
-            st.success(f"The run has done all {run.config.iterations} iterations. Press Reset to start again, "
-                       "or raise the number of iterations in the sidebar to continue.")
 
 if "controls" not in hide:
     with st.expander("Build a lesson link", icon=":material/link:"):

@@ -123,20 +123,25 @@ def panel_caption(panel) -> None:
 def draw_panels(panels, ctx: PanelContext, columns: int = 2) -> None:
     """Lay the registry's panels out `columns` to a row (wide ones take a row), each with its caption."""
     row: list = []
+    downloads = False
 
     def flush():
         if row:
             for col, p in zip(st.columns(columns), row):
                 with col:
-                    _one(p, ctx)
+                    _one(p, ctx, downloads)
             row.clear()
 
-    if ctx.records:
-        export_note()  # once per page: says so when no Chromium can render the downloads
+    if ctx.records and export_note():  # once per page: says so when no Chromium can render the downloads
+        # Off by default: three buttons under every chart are 27 widgets that each Step of each student
+        # in a class would register again; the slide pack below holds every chart either way.
+        downloads = st.toggle("Slide downloads under each chart (SVG, PNG, PDF)", key="export.per_chart",
+                              help="Slide-ready files of one chart (16:9, large fonts), drawn on the server. "
+                                   "The slide pack at the bottom of the page holds every chart.")
     for p in panels:
         if p.wide:
             flush()
-            _one(p, ctx)
+            _one(p, ctx, downloads)
         else:
             row.append(p)
             if len(row) == columns:
@@ -146,7 +151,7 @@ def draw_panels(panels, ctx: PanelContext, columns: int = 2) -> None:
         slide_pack_download(ctx.records, ctx.config_dict, key="export.pack")
 
 
-def _one(panel, ctx: PanelContext) -> None:
+def _one(panel, ctx: PanelContext, downloads: bool = False) -> None:
     if panel.render is not None:
         st.markdown(f"##### {panel.title}")
         panel.render(ctx)
@@ -157,7 +162,7 @@ def _one(panel, ctx: PanelContext) -> None:
         return
     st.plotly_chart(fig, key=f"panel.{panel.key}", config=CHART_CONFIG)
     panel_caption(panel)
-    if ctx.records:  # slide-ready SVG/PNG/PDF, rendered server-side only when clicked
+    if ctx.records and downloads:  # slide-ready SVG/PNG/PDF, rendered server-side only when clicked
         chart_downloads(fig, panel.key, key=f"export.{panel.key}", note=False)
 
 
