@@ -159,3 +159,40 @@ def test_cli_demos_check(tmp_path):
 
     res = run_cli("demos", "check", str(good), "--env", "pong")
     assert res.returncode == 2 and "unknown environment 'pong'" in res.stderr
+
+
+def test_shipped_demonstrations_are_read_once_and_shared_read_only(tmp_path, monkeypatch, tiny_config):
+    """Thirty students opening the step page build thirty runs on the same shipped file: it is read once per
+    process, its arrays cannot be written by one session for the others, each run gets its own copy, and a
+    remade file is read again."""
+    import shutil
+
+    import ifo.data.shipped as shipped
+    from ifo.run import Run
+
+    spec = get_env("cartpole")
+    shipped._loaded.clear()
+    first = shipped.load_shipped_demonstrations(spec)
+    second = shipped.load_shipped_demonstrations(spec)
+    assert np.shares_memory(second.transitions.states, first.transitions.states)  # read once
+    second.hidden_actions = None  # a caller's own object: the next caller still gets the actions
+    assert shipped.load_shipped_demonstrations(spec).hidden_actions is not None
+    with pytest.raises(ValueError):
+        first.transitions.states[0, 0] = 1.0
+    run = Run(tiny_config())
+    run.demos.transitions.states[0, 0] += 1.0  # the run's own copy
+    assert not np.shares_memory(run.demos.transitions.states, first.transitions.states)
+
+    # a remade file (another inode, size or time) is read again
+    moved = tmp_path / "demos"
+    shutil.copytree(demos_mod.shipped_demos_path(spec).parent, moved)
+    original = demos_mod.shipped_demos_path(spec)
+    with np.load(original, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["obs"] = arrays["obs"] + 1.0
+    copy = moved / original.name
+    np.savez(copy, **arrays)
+    monkeypatch.setattr(shipped, "level_demos_path", lambda s, level=1: copy)
+    again = shipped.load_shipped_demonstrations(spec)
+    assert not np.shares_memory(again.transitions.states, first.transitions.states)
+    np.testing.assert_allclose(again.transitions.states, first.transitions.states + 1.0)

@@ -11,6 +11,7 @@ level K's demonstrations measures Performance against that expert's AER (`level_
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from ifo.data.demos import (MAX_DEMO_BYTES, DemoError, Demonstrations, ExpertTra
                             shipped_actions_path, shipped_demos_path)
 from ifo.data.npz import NpzError, read_npz
 from ifo.envs import EnvSpec
+from ifo.runtime import BoundedCache
 
 
 MAZE_KEYS = ("layouts", "episode_layout", "positions", "next_positions", "episode_starts", "rewards")
@@ -62,16 +64,45 @@ def level_references(spec: EnvSpec, level: int = 1) -> dict:
     return {"random_aer": refs.get("random_aer"), "expert_aer": info["aer"]}
 
 
+def _arrays(demos: Demonstrations) -> list[np.ndarray]:
+    t = demos.transitions
+    return [a for a in (t.states, t.next_states, t.episode_index, demos.episode_returns, demos.hidden_actions,
+                        demos.maze_layouts) if a is not None]
+
+
+def _read_only(demos: Demonstrations) -> Demonstrations:
+    for a in _arrays(demos):
+        a.setflags(write=False)
+    return demos
+
+
+# Every session that opens the step page builds a run on the same shipped files (a class: thirty at once),
+# so each is read (and a maze's frames drawn) once per process and its arrays shared read-only; each caller
+# gets its own Demonstrations around them, and a run takes its own copies (`Demonstrations.first_episodes`).
+# Keyed by the files' inode, size and time: a remade file is read again.
+_loaded = BoundedCache(256 * 2**20, size=lambda demos: sum(a.nbytes for a in _arrays(demos)))
+
+
 def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_size: int = 32,
                                 episodes: int | None = None, level: int = 1) -> Demonstrations:
     """The shipped demonstrations (of expert level `level`, 1..5); maze frames are drawn for the first
-    `episodes` only (all if None)."""
+    `episodes` only (all if None). Shared across callers in this process: the arrays are read-only."""
     if spec.is_maze and level != 1:
         raise DemoError(f"{spec.name} has one expert (shortest paths): no level {level}")
     path = level_demos_path(spec, level)
     if not path.exists():
         raise DemoError(f"no shipped demonstrations at {path}; make them with "
                         f"`python -m ifo experts demos --env {spec.name}" + (f" --level {level}`" if level != 1 else "`"))
+    files = [path, shipped_actions_path(spec)] if level == 1 else [path]
+    stamps = tuple((str(f), st.st_ino, st.st_size, st.st_mtime_ns) for f in files if f.exists() for st in [f.stat()])
+    key = (spec.name, obs_mode, image_size, episodes if spec.is_maze else None, level, stamps)
+    shared = _loaded.get_or_build(key, lambda: _read_only(_load(spec, path, obs_mode, image_size, episodes, level)))
+    t = shared.transitions  # the caller's own objects (it may set their fields) around the shared arrays
+    return replace(shared, transitions=replace(t))
+
+
+def _load(spec: EnvSpec, path: Path, obs_mode: str, image_size: int, episodes: int | None,
+          level: int) -> Demonstrations:
     if not spec.is_maze:
         env = spec.make()
         shape = tuple(env.observation_space.shape)
