@@ -22,7 +22,8 @@ import pytest
 
 pytest.register_assert_rewrite("browser_support")
 from browser_support import (CHART, LONG_MS, MAIN, ROOT, choose, counter, download, error_boxes, go_by_sidebar,
-                             open_app, query, sidebar, step, type_number, user_of, wait_idle)  # noqa: E402
+                             iteration_shown, open_app, query, sidebar, step, type_number, user_of,
+                             wait_idle)  # noqa: E402
 
 pytest_plugins = ["browser_support"]
 pytestmark = pytest.mark.browser
@@ -90,6 +91,37 @@ def test_step_iupe_on_cartpole(app, page):
     page.wait_for_function("v => v.readyState >= 2 && v.duration > 0", arg=video.element_handle(), timeout=LONG_MS)
     start = video.evaluate("v => v.currentTime")
     page.wait_for_function("([v, t]) => v.currentTime !== t", arg=[video.element_handle(), start], timeout=LONG_MS)
+
+
+def test_run_n_stops_by_itself_pause_stops_a_play_and_reset_starts_again(app, page):
+    """Run N plays N iterations one after another and stops; Run to the end plays until Pause, which stops
+    after the iteration in progress; Reset starts the run again. (Each button is pressed inside the part of
+    the page that Steps redraw, and each changes the page's timer or its run: the whole page follows.)"""
+    open_app(page, app, "step")
+    expect(counter(page)).to_have_text("Iteration 0 of 10")
+    type_number(page, "N", 2, where=page.locator(MAIN))
+    page.get_by_role("button", name="Run N", exact=True).click()
+    expect(page.get_by_role("button", name="Pause", exact=True)).to_be_visible(timeout=LONG_MS)
+    expect(page.get_by_role("button", name="Run N", exact=True)).to_be_visible(timeout=LONG_MS)  # it stopped
+    wait_idle(page, LONG_MS)
+    assert iteration_shown(page) == (2, 10)
+    page.wait_for_timeout(1500)
+    assert iteration_shown(page) == (2, 10)  # and no timer trains more
+
+    page.get_by_role("button", name="Run to the end", exact=True).click()
+    expect(counter(page)).to_have_text(re.compile(r"^Iteration [3-9] of 10$"), timeout=LONG_MS)
+    page.get_by_role("button", name="Pause", exact=True).click()
+    expect(page.get_by_role("button", name="Run N", exact=True)).to_be_visible(timeout=LONG_MS)
+    wait_idle(page, LONG_MS)
+    paused_at, _ = iteration_shown(page)
+    page.wait_for_timeout(1500)
+    assert iteration_shown(page) == (paused_at, 10) and 3 <= paused_at < 10
+
+    page.get_by_role("button", name="Reset", exact=True).click()
+    expect(counter(page)).to_have_text("Iteration 0 of 10", timeout=LONG_MS)
+    wait_idle(page)
+    step(page, 1, 10)  # the new run Steps as usual
+    assert not error_boxes(page).count()
 
 
 # ----------------------------------------------------------------------------- 2. a maze
