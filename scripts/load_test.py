@@ -128,8 +128,7 @@ class ProtocolSession:
 
     def __init__(self, ws, query: str):
         self.ws, self.query = ws, query
-        self.buttons: dict[str, str] = {}
-        self.button_fragments: dict[str, str] = {}  # label -> the fragment a button is drawn in ("" for none)
+        self.buttons: dict[str, tuple[str, str]] = {}  # label -> (widget id, the fragment it is drawn in or "")
         self.counter: int | None = None
         self.finished = False
         self.page_hash = ""  # the page's script hash once the server named it (a browser sends it back)
@@ -183,8 +182,7 @@ class ProtocolSession:
             element = msg.delta.new_element
             what = element.WhichOneof("type")
             if what == "button":
-                self.buttons[element.button.label] = element.button.id
-                self.button_fragments[element.button.label] = msg.delta.fragment_id
+                self.buttons[element.button.label] = (element.button.id, msg.delta.fragment_id)
             elif what == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
                 self.counter = int(m.group(1))
                 self.shown(self.counter)
@@ -199,7 +197,8 @@ class ProtocolSession:
 
     async def step(self, timeout: float) -> None:
         want = (self.counter or 0) + 1
-        await self.rerun(self.buttons["Step"], fragment=self.button_fragments.get("Step"))
+        button, fragment = self.buttons["Step"]
+        await self.rerun(button, fragment=fragment)
         await self.until(lambda: self.counter == want and self.finished, timeout)
 
     async def close(self) -> None:

@@ -85,13 +85,17 @@ def controls():
                    "or raise the number of iterations in the sidebar to continue.")
 
 
+def page_must_follow() -> bool:
+    """What the fragment cannot do on its own: a Reset (a new run, built above), or a Play started or
+    stopped (the fragment's timer is set when the page runs)."""
+    return slot.state.reset_requested or slot.tick != timer
+
+
 # The buttons live in the fragment, so a Step reruns the fragment only: the title, the settings and
 # the sidebar are not drawn again for each Step (what thirty students pressing Step at once queue on).
-# What the fragment cannot do on its own goes to a full rerun: a Reset (a new run, built above), and
-# starting or stopping Play (the fragment's timer is set when the page runs).
 @st.fragment(run_every=timer)
 def live():
-    if slot.state.reset_requested or slot.tick != timer:
+    if page_must_follow():
         st.rerun()
     controls_area = st.container()
     progress, count_area, scrub_area, diagram_area = st.empty(), st.empty(), st.empty(), st.empty()
@@ -108,7 +112,8 @@ def live():
                                                layout=run.learner.diagram),
                                   key=f"step.diagram.live.{last['draws']}", config=CHART_CONFIG)
 
-    if slot.advance(progress, on_phase):  # a Play just ended: redraw the buttons, stop the timer
+    slot.advance(progress, on_phase)
+    if page_must_follow():  # a Play just ended (or failed): stop the timer
         st.rerun()
     if "controls" not in hide:
         with controls_area:  # drawn after the iteration, so Step's state is the run's new one

@@ -392,33 +392,31 @@ class RunSlot:
             s.target = self._base()
 
     # ------------------------------------------------------------------ training
-    def advance(self, area, on_phase=None) -> bool:
+    def advance(self, area, on_phase=None) -> None:
         """Train one iteration if the run is behind its target, showing progress in `area`
-        (an st.empty()) and calling `on_phase(phase, iteration)` as each phase starts. Returns
-        True when this iteration ended a Run N, so the page can rerun in full and stop the
-        fragment's timer."""
+        (an st.empty()) and calling `on_phase(phase, iteration)` as each phase starts. A Play
+        that reaches its target (or fails) stops: `playing` turns False, and so does `tick`."""
         s = self.state
         if s.run is None:
-            return False
+            return
         bar = _ProgressBar(area, s.run, on_phase)
         # Streamlit starts a full rerun without waiting for a fragment run it cancels, so two
         # threads of this session can get here at once: one trains, the other waits for it.
         _acquire(s.lock, bar, area, "Finishing the iteration in progress...")
         try:
-            return self._advance_locked(bar, area)
+            self._advance_locked(bar, area)
         finally:
             s.lock.release()
 
-    def _advance_locked(self, bar: "_ProgressBar", area) -> bool:
+    def _advance_locked(self, bar: "_ProgressBar", area) -> None:
         s, run = self.state, self.state.run
         if run.iteration >= min(s.target, run.config.iterations):
-            if s.playing:
-                s.playing = False
-                return True
-            return False
+            s.playing = False
+            return
         if run.step_if_cached() is not None:  # the class's lesson: another session computed this iteration
             self.save()
-            return self._play_ended(run)
+            self._stop_play_at_target(run)
+            return
         _acquire(_TRAININGS, bar, area, "Waiting for other sessions' training to finish...")
         s.training = True
         try:
@@ -439,14 +437,12 @@ class RunSlot:
             bar.show(area.empty)
         if bar.deferred is not None:  # the click that arrived during the iteration: handle it now
             raise bar.deferred
-        return self._play_ended(run)
+        self._stop_play_at_target(run)
 
-    def _play_ended(self, run: Run) -> bool:
+    def _stop_play_at_target(self, run: Run) -> None:
         s = self.state
-        if s.playing and run.iteration >= min(s.target, run.config.iterations):
+        if run.iteration >= min(s.target, run.config.iterations):
             s.playing = False
-            return True
-        return False
 
 
 def _acquire(lock, bar: _ProgressBar, area, message: str) -> None:
