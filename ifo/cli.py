@@ -218,9 +218,16 @@ def cmd_bench(a: argparse.Namespace) -> int:
 
         text = export_table()
     elif a.what == "speed":
-        from ifo.bench import speed_table
+        from ifo.bench import SPEED_CASES, speed_table
 
-        text = speed_table(iterations=a.iterations or 5, save_baseline=a.save_baseline)
+        envs = a.envs.split(",") if a.envs else None
+        cases = [case for case in SPEED_CASES if envs is None or case[0] in envs]
+        if not cases:
+            raise CliError(f"--envs: no speed case for {a.envs!r}; the cases' environments are "
+                           + ", ".join(dict.fromkeys(env for env, _ in SPEED_CASES)))
+        if a.save_baseline and envs is not None:
+            raise CliError("--save-baseline records every case: leave out --envs")
+        text = speed_table(cases, iterations=a.iterations or 5, save_baseline=a.save_baseline)
     else:
         from ifo.bench import bench_table
 

@@ -37,6 +37,7 @@ CASES = {
     "cartpole-abco-whole": dict(env="cartpole", method="bco-alpha", sampling="abco-whole", seed=3),
     "acrobot-iupe": dict(env="acrobot", method="iupe", seed=1),
     "mountaincar-bco-alpha": dict(env="mountaincar", method="bco-alpha"),
+    "lunarlander-iupe": dict(env="lunarlander", method="iupe", seed=2),
     "maze3-iupe": dict(env="maze3", method="iupe", expert_episodes=10),
     "maze3-bco-alpha-vector": dict(env="maze3", method="bco-alpha", obs_mode="vector", expert_episodes=10),
     "maze3-abco-thesis": dict(env="maze3", method="abco", expert_episodes=10, maze_eval_layouts="demonstration",

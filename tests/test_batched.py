@@ -165,3 +165,77 @@ def test_render_draws_the_current_state():
     assert frame.shape == (400, 600, 3) and frame.dtype == np.uint8
     np.testing.assert_array_equal(frame, env.render())
     assert not np.array_equal(frame, stepper.render(0))
+
+
+# ----------------------------------------------------------------------------- LunarLander
+# Box2D has no batched form; ifo.envs.lunar steps gymnasium's own worlds with less Python around them.
+# Its arithmetic is gymnasium's, so the comparison is exact on every machine.
+
+def _lander_policy(rng):
+    """gymnasium's heuristic lander (it lands: the episode ends at rest) with some random actions mixed in."""
+    from gymnasium.envs.box2d.lunar_lander import heuristic
+
+    discrete = gym.make("LunarLander-v3")  # the heuristic only asks it whether actions are continuous
+
+    def act(obs):
+        a = np.array([heuristic(discrete, o) for o in obs], dtype=np.int64)
+        noise = rng.random(len(a)) < 0.3
+        return np.where(noise, rng.integers(0, 4, len(a)), a)
+    return act
+
+
+@pytest.mark.parametrize("limit", [1000, 60])
+def test_lunarlander_steps_as_gymnasium_does(limit):
+    from ifo.envs.lunar import LunarLanderStepper
+
+    seeds = [0, 3, 11, 42, 2024]
+    stepper = LunarLanderStepper([gym.make("LunarLander-v3") for _ in seeds], limit)
+    envs = [gym.make("LunarLander-v3", max_episode_steps=limit) for _ in seeds]
+    obs = stepper.reset(seeds)
+    np.testing.assert_array_equal(obs, np.stack([e.reset(seed=s)[0] for e, s in zip(envs, seeds)]))
+    act, alive, ends = _lander_policy(np.random.default_rng(1)), np.ones(len(seeds), dtype=bool), []
+    while alive.any():
+        idx = np.flatnonzero(alive)
+        actions = act(obs[idx])
+        o, r, term, trunc, infos = stepper.step(idx, actions)
+        ref = [envs[i].step(int(a)) for i, a in zip(idx, actions)]
+        np.testing.assert_array_equal(o, np.stack([x[0] for x in ref]))
+        np.testing.assert_array_equal(r, [x[1] for x in ref])
+        np.testing.assert_array_equal(term, [x[2] for x in ref])
+        np.testing.assert_array_equal(trunc, [x[3] for x in ref])
+        assert o.dtype == np.float32 and r.dtype == np.float64 and infos == [{}] * len(idx)
+        obs[idx] = o
+        alive[idx[term | trunc]] = False
+        ends += [(bool(t), bool(u), float(x)) for t, u, x in zip(term, trunc, r) if t or u]
+    if limit == 60:
+        assert all(u for _, u, _ in ends)  # every episode met the time limit
+    else:
+        assert any(t and x == 100 for t, _, x in ends)  # a landing at rest ends the episode with +100
+
+
+def test_lunarlander_runs_the_same_episodes_through_the_pool():
+    from ifo.envs.lunar import LunarLanderStepper
+
+    spec, seeds = get_env("lunarlander"), list(range(300, 316))
+    fast_pool, slow_pool = EnvPool(spec), EnvPool(spec, batched=False)
+    assert isinstance(fast_pool.stepper(2), LunarLanderStepper) and isinstance(slow_pool.stepper(2), GymStepper)
+    assert isinstance(EnvPool(spec, render_mode="rgb_array").stepper(1), GymStepper)  # videos draw particles
+
+    def act_with(rng):
+        policy = _lander_policy(rng)
+        return lambda obs: (policy(obs),) * 2
+
+    fast = run_episodes(fast_pool, act_with(np.random.default_rng(2)), seeds)
+    slow = run_episodes(slow_pool, act_with(np.random.default_rng(2)), seeds)
+    for field in ("states", "actions", "next_states", "episode_index", "rewards", "returns", "lengths", "goals"):
+        np.testing.assert_array_equal(getattr(fast, field), getattr(slow, field))
+    assert fast.goals.any()
+
+
+def test_lunarlander_refuses_an_action_it_does_not_have():
+    from ifo.envs.lunar import LunarLanderStepper
+
+    stepper = LunarLanderStepper([gym.make("LunarLander-v3")], 1000)
+    stepper.reset([0])
+    with pytest.raises(ValueError, match="actions 0-3"):
+        stepper.step(np.array([0]), np.array([4]))

@@ -85,6 +85,18 @@ def test_bench_reproduce_passes_the_maze_protocol_to_every_run(monkeypatch, caps
     assert "the demonstrations' maze layouts" in out and "deadlock guard" in out and "1000 demonstrations" in out
 
 
+def test_bench_speed_times_only_the_environments_asked_for(monkeypatch, capsys):
+    import ifo.bench as bench_mod
+    from ifo.cli import main
+
+    seen = []
+    monkeypatch.setattr(bench_mod, "speed_table", lambda cases, **kw: seen.extend(cases) or "(speed table)")
+    assert main(["bench", "speed", "--envs", "lunarlander,maze5", "--iterations", "1"]) == 0
+    assert seen == [("lunarlander", "iupe"), ("maze5", "iupe")]
+    assert main(["bench", "speed", "--envs", "atlantis"]) == 2
+    assert "no speed case for 'atlantis'" in capsys.readouterr().err
+
+
 def test_train_takes_the_same_defaults_as_the_app_and_the_maze_protocol():
     from ifo.cli import build_parser, config_from_args
     from ifo.config import RunConfig

@@ -7,7 +7,8 @@ one step; we do not).
 
 Stepping goes through a *stepper*: `GymStepper` drives one gymnasium environment per
 episode (works for any environment); environments with a numpy implementation of
-their dynamics (`ifo.envs.batched`) step every episode in one array operation.
+their dynamics (`ifo.envs.batched`) step every episode in one array operation, and
+LunarLander steps its Box2D worlds without gymnasium's per-step overhead (`ifo.envs.lunar`).
 """
 from __future__ import annotations
 
@@ -114,6 +115,12 @@ class EnvPool:
             fast = batched_stepper(self.spec, n)
             if fast is not None:
                 return fast
+            from ifo.envs import lunar
+
+            envs = self.envs(n)
+            if lunar.supports(envs[0]):
+                return lunar.LunarLanderStepper(envs, envs[0].spec.max_episode_steps)
+            return GymStepper(envs)
         return GymStepper(self.envs(n))
 
     def close(self) -> None:
