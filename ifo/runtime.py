@@ -32,6 +32,7 @@ class BoundedCache:
         self.limit, self.size = limit, size
         self.lock = threading.RLock()
         self._values: OrderedDict = OrderedDict()  # key -> (value, its size)
+        self._building: dict = {}  # key -> the lock its one builder holds
         self._total = 0
 
     def get(self, key, default=None):
@@ -51,14 +52,26 @@ class BoundedCache:
                 self._total -= self._values.popitem(last=False)[1][1]
 
     def get_or_build(self, key, build: Callable[[], Any]):
-        """The value kept for `key`, else `build()`'s, kept. Built outside the lock, so sessions build
-        different values in parallel (two may build the same one at once: the last put stays)."""
+        """The value kept for `key`, else `build()`'s, kept. Different keys build in parallel; callers
+        asking for the same missing key at once wait for the first one's build and take its value (a
+        class of thirty opening the same iteration draws its figures once, not thirty times)."""
         missing = object()
         value = self.get(key, missing)
-        if value is missing:
-            value = build()
-            self.put(key, value)
-        return value
+        if value is not missing:
+            return value
+        with self.lock:
+            building = self._building.setdefault(key, threading.Lock())
+        try:
+            with building:
+                value = self.get(key, missing)  # built by the caller we waited for
+                if value is missing:
+                    value = build()
+                    self.put(key, value)
+                return value
+        finally:
+            with self.lock:
+                if self._building.get(key) is building and not building.locked():
+                    del self._building[key]
 
     def __len__(self) -> int:
         return len(self._values)

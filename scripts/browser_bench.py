@@ -231,7 +231,7 @@ def bench(fast: bool, repeats: int) -> dict[str, list[dict]]:
     runs, log = folder / "runs", folder / "server.log"
     env = {"IFO_LAB_RUNS": str(runs), "IFO_LAB_FAST": "1" if fast else ""}
     results: dict[str, list[dict]] = {"step": [], "scrub": [], "to_runs": [], "to_step": []}
-    with serve_app(log, env, timeout=180, extra_args=("--server.fileWatcherType", "none")) as url, \
+    with serve_app(log, env, timeout=180) as url, \
             sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         context = browser.new_context(viewport={"width": 1400, "height": 1000})

@@ -59,10 +59,9 @@ def app(tmp_path_factory, browser) -> App:
     folder = tmp_path_factory.mktemp("streamlit")
     runs, log = folder / "runs", folder / "server.log"
     try:
-        # no file watcher: other people edit this checkout while the tests run, and a "File change"
-        # banner (or a rerun) in the middle of a journey is not what a class sees
-        with serve_app(log, {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(runs)}, timeout=120,
-                       extra_args=("--server.fileWatcherType", "none")) as url:
+        # .streamlit/config.toml turns the file watcher off, as for a class: no "File change" banner
+        # or rerun in the middle of a journey while someone edits this checkout
+        with serve_app(log, {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(runs)}, timeout=120) as url:
             served = App(url, runs, log)
             warm_up(browser, url)
             yield served

@@ -176,3 +176,47 @@ def test_a_cache_bounded_by_count_builds_each_value_once_and_keeps_a_none():
     assert built == ["a", "empty"]
     kept.get_or_build("b", lambda: build("b"))  # a third entry: the least recently used ("a") goes
     assert len(kept) == 2 and kept.get("a") is None and kept.get("empty", "gone") is None
+
+
+def test_sessions_asking_for_the_same_missing_value_at_once_build_it_once():
+    import threading
+
+    from ifo.runtime import BoundedCache
+    kept, built, release = BoundedCache(16), [], threading.Event()
+
+    def slow_build(key):
+        built.append(key)
+        release.wait(10)  # the figure takes a while: every other session asks meanwhile
+        return key.upper()
+
+    got, start = [], threading.Barrier(9)
+
+    def session(key):
+        start.wait()
+        got.append(kept.get_or_build(key, lambda: slow_build(key)))
+
+    threads = [threading.Thread(target=session, args=("fig",)) for _ in range(8)]
+    other = threading.Thread(target=session, args=("other",))
+    for t in threads + [other]:
+        t.start()
+    other.join(10)
+    assert not other.is_alive() and got == ["OTHER"]  # another key is not held up by the slow one
+    release.set()
+    for t in threads + [other]:
+        t.join(10)
+    assert sorted(got) == ["FIG"] * 8 + ["OTHER"]
+    assert sorted(built) == ["fig", "other"]  # once each, not once per session
+
+
+def test_a_build_that_fails_leaves_the_next_caller_to_build():
+    import pytest
+
+    from ifo.runtime import BoundedCache
+    kept = BoundedCache(4)
+
+    def broken():
+        raise OSError("disk gone")
+
+    with pytest.raises(OSError):
+        kept.get_or_build("k", broken)
+    assert kept.get_or_build("k", lambda: "fine") == "fine"
