@@ -25,8 +25,8 @@ def limit_threads(n: int | None = None) -> int:
 class BoundedCache:
     """What a process keeps for every session (I_pre's random transitions, the cache entries it read,
     figures, maze backgrounds), oldest-used out once `size(value)` sums past `limit` (the newest always
-    stays). Without `size` each value counts 1, so `limit` is a number of entries. Thread-safe; a caller
-    that computes a missing value holds `lock` around get-compute-put if it must be done once."""
+    stays). Without `size` each value counts 1, so `limit` is a number of entries. Thread-safe;
+    `get_or_build` builds a missing value once however many callers ask for it at once."""
 
     def __init__(self, limit: int, size: Callable[[Any], int] = lambda value: 1):
         self.limit, self.size = limit, size

@@ -115,7 +115,7 @@ class EnvPool:
             fast = batched_stepper(self.spec, n)
             if fast is not None:
                 return fast
-            from ifo.envs import lunar
+            from ifo.envs import lunar  # (imports Box2D: only for tasks without numpy dynamics)
 
             envs = self.envs(n)
             if lunar.supports(envs[0]):
