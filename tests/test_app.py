@@ -660,3 +660,24 @@ def test_slide_downloads_under_each_chart_appear_when_asked_for():
     charts = [k for k in chart_keys(at) if k.startswith("panel.")]
     assert charts and labels().count("SVG") == labels().count("PNG") == labels().count("PDF") == len(charts)
     assert labels()[-1] == "Slide pack (ZIP)"
+
+
+def test_charts_reach_the_page_without_plotly_template_and_slides_keep_theirs():
+    """Streamlit's theme draws the charts on screen, so the page's figures carry no plotly template (most of
+    a small figure's bytes, copied and sent for every student); a slide made from one gets the white one."""
+    import json
+
+    import plotly.graph_objects as go
+    import plotly.io as pio
+
+    from ifo.export import slide_theme
+
+    at = open_step_page()
+    at.button("step").click().run()
+    assert not at.exception
+    layouts = {c.key: json.loads(c.proto.spec)["layout"] for c in at.get("plotly_chart")}
+    assert any(k.startswith("panel.") for k in layouts) and "step.diagram" in layouts
+    for key, layout in layouts.items():
+        assert not layout.get("template", {}).get("layout"), key  # no colours, fonts or axes from plotly
+    slide = json.loads(pio.to_json(slide_theme(go.Figure(layout=layouts["panel.aer"]))))["layout"]
+    assert slide["template"]["layout"]["plot_bgcolor"] == "white"
