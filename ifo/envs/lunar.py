@@ -6,7 +6,7 @@ of a step is what does not move the lander: the wrappers (order check, passive c
 counted here instead), the action-space check, the numpy scalars of the state and the reward, and
 the decorative particles (gymnasium adds none without a render mode either). What stays is
 gymnasium's arithmetic in its own order (`gymnasium/envs/box2d/lunar_lander.py`, `step`), so the
-observations, rewards and ends are bit for bit the real environment's (tests/test_envs.py).
+observations, rewards and ends are bit for bit the real environment's (tests/test_batched.py).
 
 For the discrete, windless LunarLander-v3 only (the one the thesis uses); other settings step gymnasium.
 """
@@ -18,7 +18,6 @@ from typing import Sequence
 import numpy as np
 from gymnasium.envs.box2d import lunar_lander as ll
 
-GYM_ID = "LunarLander-v3"
 _MAIN_Y = ll.MAIN_ENGINE_Y_LOCATION / ll.SCALE
 _HALF_W = ll.VIEWPORT_W / ll.SCALE / 2
 _HALF_H = ll.VIEWPORT_H / ll.SCALE / 2

@@ -115,12 +115,12 @@ class EnvPool:
             fast = batched_stepper(self.spec, n)
             if fast is not None:
                 return fast
-            from ifo.envs import lunar  # (imports Box2D: only for tasks without numpy dynamics)
+            if not self.spec.is_maze:  # LunarLander (the import loads Box2D, which mazes never need)
+                from ifo.envs import lunar
 
-            envs = self.envs(n)
-            if lunar.supports(envs[0]):
-                return lunar.LunarLanderStepper(envs, envs[0].spec.max_episode_steps)
-            return GymStepper(envs)
+                envs = self.envs(n)
+                if lunar.supports(envs[0]):
+                    return lunar.LunarLanderStepper(envs, envs[0].spec.max_episode_steps)
         return GymStepper(self.envs(n))
 
     def close(self) -> None:

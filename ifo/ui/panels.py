@@ -108,8 +108,7 @@ def shared(key: tuple, build: Callable[[], go.Figure | None]) -> go.Figure | Non
 def _for_screen(fig: go.Figure | None) -> go.Figure | None:
     """The figure without plotly's template: Streamlit's theme replaces it on screen (the page looks the
     same), and Streamlit copies and sends each figure for every session that shows it, the template being
-    most of a small figure (7 → 3 KiB; copying a page's 12 figures 8.4 → 1.7 ms a session). Slides get
-    their own template (ifo.export.slide_theme)."""
+    most of a small figure (scripts/page_bytes.py). Slides get their own (ifo.export.slide_theme)."""
     if fig is not None:
         fig.layout.template = "none"
     return fig
