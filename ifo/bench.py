@@ -138,7 +138,10 @@ def speed_table(cases=SPEED_CASES, iterations: int = 5, log=lambda msg: print(ms
         lines.append(f"| {env} | {method} | {setup:.2f} | {med('total'):.2f} | {ratio} | "
                      + " | ".join(f"{med(p):.2f}" for p in phases) + " |")
     floor = step_floor()
-    lines += ["", f"{iterations} iterations each, default settings, torch threads: 1. The floor on this machine, one "
+    import torch
+
+    lines += ["", f"{iterations} iterations each, default settings, torch threads: {torch.get_num_threads()} "
+              "(IFO_TORCH_THREADS, ifo.runtime.limit_threads). The floor on this machine, one "
               "training step of a 4-32-32-2 MLP at batch 128 (an iteration makes hundreds): plain MLP "
               f"{floor['none/autograd']:.2f} ms with autograd and optimizer.step(), {floor['none/by hand']:.2f} ms as "
               f"`fit` trains it; IUPE's gated MLP {floor['gated/autograd']:.2f} ms and {floor['gated/by hand']:.2f} ms."]

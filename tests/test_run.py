@@ -375,3 +375,42 @@ def test_a_run_built_again_in_the_same_process_reuses_i_pre_with_the_same_number
         torch.testing.assert_close(learned_weights(reused)[k], v, rtol=0, atol=0)
     Run(tiny_config(method=method, iterations=2, seed=cfg.seed + 1))
     assert calls == [1]  # another seed: collected afresh
+
+
+def test_a_kept_i_pre_is_not_held_up_by_another_sessions_collection():
+    """A session whose I_pre is already kept builds its run at once, even while another session (another
+    configuration) is still collecting its own; the kept set and the random stream are as collected."""
+    import threading
+
+    from ifo.data.transitions import Transitions, random_transitions_once
+
+    def collect_with(rng, note=None):
+        if note is not None:
+            note()
+        states = rng.normal(size=(6, 4)).astype(np.float32)
+        return Transitions(states, rng.integers(0, 2, 6), states + 1), 6
+
+    first_rng = np.random.default_rng(7)
+    kept, _ = random_transitions_once({"lesson": "kept"}, first_rng, lambda: collect_with(first_rng))
+    started, release = threading.Event(), threading.Event()
+
+    def slow_collection():  # another configuration, still collecting
+        rng = np.random.default_rng(8)
+        random_transitions_once({"lesson": "slow"}, rng,
+                                lambda: (started.set(), release.wait(30), collect_with(rng))[-1])
+
+    slow = threading.Thread(target=slow_collection)
+    slow.start()
+    try:
+        assert started.wait(10)
+        rng, got = np.random.default_rng(7), {}
+        reader = threading.Thread(target=lambda: got.update(value=random_transitions_once(
+            {"lesson": "kept"}, rng, lambda: pytest.fail("a kept set was collected again"))))
+        reader.start()
+        reader.join(10)
+        assert not reader.is_alive(), "a kept I_pre waited for another configuration's collection"
+        assert got["value"][0] is kept
+        assert rng.bit_generator.state == first_rng.bit_generator.state  # as if it had collected
+    finally:
+        release.set()
+        slow.join(30)

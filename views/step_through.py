@@ -13,7 +13,7 @@ import streamlit as st
 
 from ifo.runtime import limit_threads
 from ifo.ui.diagram import loop_diagram
-from ifo.ui.panels import CHART_CONFIG, PanelContext, show_records
+from ifo.ui.panels import CHART_CONFIG, PanelContext, for_screen, show_records
 from ifo.ui import storage
 from ifo.ui.session import RunSlot, hidden, lesson_link, lesson_parts
 from ifo.ui.settings import choice_without_widgets, run_settings
@@ -107,10 +107,9 @@ def live():
         last["phase"], last["draws"] = phase, last["draws"] + 1
         # a key per draw: a phase may come back within one iteration (the maze's attention probes),
         # and two unkeyed charts with the same figure would share one auto-generated id
-        diagram_area.plotly_chart(loop_diagram(run.records[-1] if run.records else None, phase, **sizes,
-                                               phase_boxes=boxes, doing=run.phase_text(phase),
-                                               layout=run.learner.diagram),
-                                  key=f"step.diagram.live.{last['draws']}", config=CHART_CONFIG)
+        diagram = loop_diagram(run.records[-1] if run.records else None, phase, **sizes, phase_boxes=boxes,
+                               doing=run.phase_text(phase), layout=run.learner.diagram)
+        diagram_area.plotly_chart(for_screen(diagram), key=f"step.diagram.live.{last['draws']}", config=CHART_CONFIG)
 
     slot.advance(progress, on_phase)
     if page_must_follow():  # a Play just ended (or failed): stop the timer

@@ -107,17 +107,18 @@ def random_transitions_once(key: dict, rng: np.random.Generator,
     """`collect()` (which draws from `rng`) once per process for `key` and `rng`'s state. A kept set also
     leaves `rng` where the collection left it, so the numbers are those of a fresh collection."""
     name = json.dumps({**key, "rng": rng.bit_generator.state}, sort_keys=True, default=str)
-    with RANDOM_TRANSITIONS.lock:  # one collection at a time: they are GIL-bound anyway
-        kept = RANDOM_TRANSITIONS.get(name)
-        if kept is None:
-            transitions, steps = collect()
-            for a in (transitions.states, transitions.actions, transitions.next_states):
-                a.flags.writeable = False
-            kept = (transitions, steps, rng.bit_generator.state)
-            RANDOM_TRANSITIONS.put(name, kept)
-        transitions, steps, rng_after = kept
-        rng.bit_generator.state = rng_after
-        return transitions, steps
+
+    def collect_and_freeze():
+        transitions, steps = collect()
+        for a in (transitions.states, transitions.actions, transitions.next_states):
+            a.flags.writeable = False
+        return transitions, steps, rng.bit_generator.state
+
+    # Once per key: sessions asking for the same set wait for its one collection; a set already kept,
+    # or another key's collection, is not held up by it.
+    transitions, steps, rng_after = RANDOM_TRANSITIONS.get_or_build(name, collect_and_freeze)
+    rng.bit_generator.state = rng_after
+    return transitions, steps
 
 
 def stratified_split(t: Transitions, n_actions: int, val_share: float,

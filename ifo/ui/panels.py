@@ -102,10 +102,10 @@ _figures = BoundedCache(256)  # figures, by what each is a pure function of
 
 def shared(key: tuple, build: Callable[[], go.Figure | None]) -> go.Figure | None:
     """`build()`, once per `key` (what the figure is a pure function of) across every session of this server."""
-    return _figures.get_or_build(key, lambda: _for_screen(build()))
+    return _figures.get_or_build(key, lambda: for_screen(build()))
 
 
-def _for_screen(fig: go.Figure | None) -> go.Figure | None:
+def for_screen(fig: go.Figure | None) -> go.Figure | None:
     """The figure without plotly's template: Streamlit's theme replaces it on screen (the page looks the
     same), and Streamlit copies and sends each figure for every session that shows it, the template being
     most of a small figure (scripts/page_bytes.py). Slides get their own (ifo.export.slide_theme)."""
