@@ -203,6 +203,14 @@ def cmd_bench(a: argparse.Namespace) -> int:
         text = resilience_study(a.envs.split(",") if a.envs else None, a.seeds, a.iterations, levels=levels,
                                 rows=[r.strip() for r in a.rows.split(",")] if a.rows else None,
                                 ship=a.ship, figures_dir=a.figures, **extra, **_sweep_options(a))
+    elif a.what == "seeds":
+        from ifo.sweep import ResultStore, seeds_table
+
+        if not a.store:
+            raise CliError("bench seeds needs --store DIR (a results store of reproduce or resilience)")
+        if not Path(a.store).is_dir():
+            raise CliError(f"--store: no results store at {a.store}")
+        text = seeds_table(ResultStore(a.store).done().values())
     elif a.what == "sweep":
         from ifo.bench import sweep_table
 
@@ -304,13 +312,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
     p.add_argument("what", nargs="?",
-                   choices=["baselines", "reproduce", "resilience", "speed", "export", "vanishing", "sweep"],
+                   choices=["baselines", "reproduce", "resilience", "speed", "export", "vanishing", "sweep", "seeds"],
                    default="baselines",
                    help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
                         "table; resilience: Tables 7.2-7.6 (Ch. 7) as one sweep; speed: seconds per iteration and "
                         "per phase; export: server-side figure export speed; "
                         "vanishing: BCO(α) against IUPE on CartPole with a small I_pre; sweep: the sweep engine's "
-                        "throughput in process and on Ray, and a resume after a kill")
+                        "throughput in process and on Ray, and a resume after a kill; seeds: every finished "
+                        "training of a --store, one line per seed")
     p.add_argument("--trainings", type=int, default=100, help="sweep: how many small trainings")
     from ifo.reproduce import TABLES
 

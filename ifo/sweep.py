@@ -362,6 +362,32 @@ def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = N
     return {k: done[k] for k in unique if k in done}, report
 
 
+def seeds_table(done: Iterable[dict]) -> str:
+    """Finished trainings (`ResultStore.done()`), one line per seed (a table's mean ± sd hides which seed
+    failed): P and AER at the last iteration, the seconds it took, the commit and machine that trained it."""
+    done = list(done)
+    if not done:
+        return "No finished training in this store."
+    order: dict = {}  # rows in the order their first seed finished, then by seed
+    for r in done:
+        order.setdefault((r["spec"].get("table"), r["spec"].get("row"), r["spec"].get("env")), len(order))
+
+    def cell(value, pattern: str) -> str:
+        return "—" if not isinstance(value, (int, float)) or math.isnan(value) else pattern.format(value)
+
+    lines = ["| table | row | environment | iterations | seed | P | AER | seconds | commit | machine |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(done, key=lambda r: (order[(r["spec"].get("table"), r["spec"].get("row"), r["spec"].get("env"))],
+                                         r["spec"].get("seed", 0))):
+        spec, result = r["spec"], r.get("result", {})
+        lines.append(f"| {spec.get('table', '—')} | {spec.get('row', '—')} | {spec.get('env', '—')} | "
+                     f"{spec.get('iterations') or 'default'} | {spec.get('seed', '—')} | "
+                     f"{cell(result.get('performance'), '{:.3f}')} | {cell(result.get('aer'), '{:.3f}')} | "
+                     f"{cell(result.get('seconds'), '{:.0f}')} | {str(r.get('commit') or '?')[:7]} | "
+                     f"{r.get('driver', {}).get('hostname', '?')} |")
+    return "\n".join(lines)
+
+
 def summarise_store(rows: Iterable[dict]) -> dict:
     """Counts and timings of a store's rows (for the report of a sweep)."""
     rows = list(rows)

@@ -97,6 +97,36 @@ def test_bench_speed_times_only_the_environments_asked_for(monkeypatch, capsys):
     assert "no speed case for 'atlantis'" in capsys.readouterr().err
 
 
+def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys):
+    """A table's mean ± sd hides which seed failed: `bench seeds` prints one line per finished training,
+    rows in the order they first finished, seeds in order; a failure later retried shows its success only."""
+    from ifo.cli import main
+    from ifo.sweep import ResultStore
+
+    store = ResultStore(tmp_path / "store")
+
+    def row(name, seed, status="done", performance=None):
+        spec = {"table": "6.2", "row": name, "env": "maze10", "seed": seed, "iterations": 40}
+        out = {"key": f"{name}-{seed}", "spec": spec, "status": status, "commit": "0123456789ab",
+               "driver": {"hostname": "lab-7"}}
+        if status == "done":
+            out["result"] = {"performance": performance, "aer": performance - 1, "seconds": 151.4}
+        return out
+
+    for r in (row("IUPE", 1, performance=0.25), row("BCO(α)", 0, "failed"), row("IUPE", 0, performance=0.5),
+              row("BCO(α)", 0, performance=-0.0867)):
+        store.append(r)
+    assert main(["bench", "seeds", "--store", str(store.dir)]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 6.2")]
+    assert lines == ["| 6.2 | IUPE | maze10 | 40 | 0 | 0.500 | -0.500 | 151 | 0123456 | lab-7 |",
+                     "| 6.2 | IUPE | maze10 | 40 | 1 | 0.250 | -0.750 | 151 | 0123456 | lab-7 |",
+                     "| 6.2 | BCO(α) | maze10 | 40 | 0 | -0.087 | -1.087 | 151 | 0123456 | lab-7 |"]
+    assert main(["bench", "seeds", "--store", str(tmp_path / "nowhere")]) == 2
+    assert "no results store" in capsys.readouterr().err
+    assert main(["bench", "seeds"]) == 2
+    assert "needs --store" in capsys.readouterr().err
+
+
 def test_train_takes_the_same_defaults_as_the_app_and_the_maze_protocol():
     from ifo.cli import build_parser, config_from_args
     from ifo.config import RunConfig
