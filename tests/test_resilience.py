@@ -171,6 +171,37 @@ def test_results_from_the_store_feed_the_figure_and_the_page_tables(tmp_path):
     assert len(ch7.results_from_rows(json.loads(line) for line in (tmp_path / "cartpole.jsonl").read_text().splitlines())) == 12
 
 
+def _longer_budget_rows():
+    """GAIL again on CartPole's Expert¹, with 40 rounds and 100 demonstrations, and that sweep's Random row."""
+    spec = {"table": "7.2", "env": "cartpole", "iterations": 40, "settings": {"expert_level": 1}}
+    rows = [{"key": "r1-40", "status": "done", "spec": {**spec, "row": "Random", "seed": 0},
+             "result": {"aer": 20.0, "performance": 0.0}}]
+    for seed in (0, 1):
+        rows.append({"key": f"GAIL1{seed}-40", "status": "done", "spec": {**spec, "row": "GAIL", "seed": seed},
+                     "result": {"aer": 490.0 + seed, "performance": 0.98, "expert_aer": 500.0, "level": 1,
+                                "expert_episodes": 100, "fidelity": 0.5}})
+    return rows
+
+
+def test_a_second_sweep_ships_beside_the_first_and_each_budget_reads_alone(tmp_path):
+    """Shipping another sweep's cells (GAIL with a longer budget) keeps the file's other cells; the page
+    reads one budget at a time, the one with every method first, each with its own Random and Expert rows."""
+    first = [dict(r, spec={**r["spec"], "iterations": 5,
+                           "settings": {**r["spec"].get("settings", {}), "expert_episodes": 20}})
+             for r in _store_rows()]
+    ch7.ship_results(first, tmp_path)
+    assert ch7.ship_results(_longer_budget_rows(), tmp_path) == {"cartpole": 15}
+    again = [dict(r, result={**r["result"], "aer": 499.0}) if r["key"] == "GAIL10-40" else r
+             for r in _longer_budget_rows()]
+    assert ch7.ship_results(again, tmp_path) == {"cartpole": 15}  # the same training is replaced, not added
+    results = ch7.results_from_rows(json.loads(line) for line in (tmp_path / "cartpole.jsonl").read_text().splitlines())
+    assert ch7.budgets(results) == [(5, 20), (40, 100)]
+    assert ch7.budget_label(results, (40, 100)) == "40 iterations, 100 demonstrations: GAIL"
+    short, longer = ch7.in_budget(results, (5, 20)), ch7.in_budget(results, (40, 100))
+    assert {r["method"] for r in short} == {"Random", "Expert¹", "Expert⁴", "BC", "IUPE"} and len(short) == 12
+    assert sorted((r["method"], r["aer"]) for r in longer) == [("GAIL", 491.0), ("GAIL", 499.0), ("Random", 20.0)]
+
+
 def test_a_live_cell_is_a_plain_run_config_on_that_levels_demonstrations():
     cfg = ch7.live_config("cartpole", "ilpo", 3, seed=2, iterations=4, overrides={"pre_size": 2000, "nope": 1})
     assert cfg.expert_level == 3 and cfg.demos.endswith("cartpole-level3.npz") and cfg.seed == 2
@@ -231,6 +262,23 @@ def test_the_page_draws_fig_7_1_with_fidelity_beside_it(app_env, monkeypatch):
         assert {k for k in keys if "resilience" in k} and len(at.get("download_button")) == 6
     at.selectbox(key="resilience.env").set_value("acrobot").run()
     assert any("No shipped results for Acrobot" in i.value for i in at.info)
+
+
+def test_the_page_offers_each_shipped_budget_and_draws_one_at_a_time(app_env, monkeypatch):
+    path = app_env / "cartpole.jsonl"
+    ch7.ship_results(_store_rows() + _longer_budget_rows(), app_env)
+    monkeypatch.setattr(ch7, "shipped_results_path", lambda env: path if env == "cartpole" else app_env / "none.jsonl")
+    at = open_page("resiltest03")
+    budget = at.radio(key="resilience.budget.cartpole")
+    assert budget.options == ["5 iterations, all demonstrations: BC, IUPE", "40 iterations, 100 demonstrations: GAIL"]
+    assert chart_names(at, "resilience.aer") == ["expert", "BC", "IUPE"]  # the budget with every method first
+    budget.set_value((40, 100)).run()
+    assert chart_names(at, "resilience.aer") == ["expert", "GAIL"]
+    assert set(frame(at, "P (ours)")["method"]) == {"GAIL"}
+    at.multiselect(key="resilience.methods").set_value(["BC"]).run()
+    assert any("None of the chosen methods was trained with this budget" in i.value for i in at.info)
+    at.selectbox(key="resilience.env").set_value("acrobot").run()
+    assert not at.exception and [r.key for r in at.radio] == ["resilience.metric"]  # no budget to choose
 
 
 def test_the_page_shows_the_shipped_results_and_the_expert_levels(app_env):

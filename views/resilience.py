@@ -28,12 +28,23 @@ user = storage.current_user()
 env = st.selectbox("Environment", list(ch7.ENVS_7), format_func=env_label, key="resilience.env")
 labels = [label for label, _ in ch7.METHODS_7]
 methods = st.multiselect("Methods", labels, default=labels, key="resilience.methods")
-results = [r for r in ch7.load_shipped_results(env) if r["method"] in methods or r["reference"]]
+every_budget = ch7.load_shipped_results(env)
+shipped = every_budget
 
 st.subheader("Fig 7.1 from the shipped results")
-if not any(not r["reference"] for r in results):
+budgets = ch7.budgets(every_budget)
+if len(budgets) > 1:  # e.g. every method with 5 rounds, and GAIL again with 40
+    budget = st.radio("Training budget", budgets, format_func=lambda b: ch7.budget_label(every_budget, b),
+                      key=f"resilience.budget.{env}",
+                      help="Iterations and demonstrations per training. Adversarial learners (GAIL) need many "
+                           "more rounds than the others: a short budget says more about that than about the expert.")
+    shipped = ch7.in_budget(every_budget, budget)
+results = [r for r in shipped if r["method"] in methods or r["reference"]]
+if not budgets:
     st.info(f"No shipped results for {env_label(env)} yet. Make them with `python -m ifo bench resilience "
             f"--envs {env} --seeds 3 --store runs/sweeps/ch7 --ship` (trainings run on Ray).")
+elif not any(not r["reference"] for r in results):
+    st.info("None of the chosen methods was trained with this budget: choose another budget or method.")
 else:
     iters = sorted({r["iterations"] for r in results if r["iterations"]})
     runs = len([r for r in results if not r["reference"]])

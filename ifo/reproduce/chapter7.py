@@ -280,8 +280,47 @@ def results_from_rows(rows) -> list[dict]:
                     "expert_aer": r.get("expert_aer"), "aer": r.get("aer"), "aer_std": r.get("aer_std"),
                     "performance": r.get("performance"), "performance_expert1": r.get("performance_expert1"),
                     "fidelity": r.get("fidelity"), "iterations": spec.get("iterations"),
+                    "expert_episodes": r.get("expert_episodes") or spec.get("settings", {}).get("expert_episodes"),
                     "seconds": r.get("seconds"), "reference": spec.get("row", "").startswith("Expert")
                     or spec.get("row") == "Random"})
+    return out
+
+
+# A budget is what a training was given: (iterations, demonstrations). The shipped results hold every
+# method with the short budget, and may hold more cells with a longer one (GAIL on CartPole, 40 rounds).
+def _budget(result: dict) -> tuple:
+    return result["iterations"], result["expert_episodes"]
+
+
+def budgets(results: list[dict]) -> list[tuple]:
+    """The budgets of the trainings in `results`, the one that holds the most methods first."""
+    methods: dict[tuple, set] = {}
+    for r in results:
+        if not r["reference"]:
+            methods.setdefault(_budget(r), set()).add(r["method"])
+    return sorted(methods, key=lambda b: (-len(methods[b]), b[0] or 0, b[1] or 0))
+
+
+def budget_label(results: list[dict], budget: tuple) -> str:
+    """'40 iterations, 100 demonstrations: GAIL', for the page's choice of shipped results."""
+    iterations, episodes = budget
+    methods = [label for label, _ in METHODS_7 if any(r["method"] == label and _budget(r) == budget for r in results)]
+    return (f"{iterations or 'default'} iterations, {episodes or 'all'} demonstrations: "
+            + ", ".join(methods))
+
+
+def in_budget(results: list[dict], budget: tuple) -> list[dict]:
+    """The trainings given `budget`, and the Random and Expert rows of a sweep with as many iterations
+    (they do not depend on the budget; one per row, level and seed)."""
+    out, references = [], set()
+    for r in results:
+        if r["reference"]:
+            key = (r["method"], r["level"], r["seed"])
+            if r["iterations"] == budget[0] and key not in references:
+                references.add(key)
+                out.append(r)
+        elif _budget(r) == budget:
+            out.append(r)
     return out
 
 
@@ -305,9 +344,12 @@ def summary(results: list[dict], env: str) -> list[dict]:
 def ship_results(store_rows, out_dir, envs=None, seeds: int | None = None) -> dict:
     """Write each environment's Chapter 7 rows of a sweep store to OUT_DIR/<env>.jsonl (the page's shipped
     results; the store already keeps no per-iteration records), only seeds below `seeds` if given (what the
-    tables show). Returns env -> rows written."""
+    tables show). A file's rows from other sweeps (other cells, another budget) are kept; the same training
+    is replaced. Returns env -> rows written."""
     import json
     from pathlib import Path
+
+    from ifo.sweep import read_rows
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -323,7 +365,11 @@ def ship_results(store_rows, out_dir, envs=None, seeds: int | None = None) -> di
     from ifo.io import atomic_write_text
 
     for env, rows in by_env.items():
-        rows.sort(key=lambda r: (r["spec"]["table"], r["spec"]["row"], r["spec"]["seed"]))
+        path = out_dir / f"{env}.jsonl"
+        new = {r["key"] for r in rows}  # cells shipped before from other sweeps (another budget) stay
+        rows += [r for r in (read_rows(path) if path.exists() else []) if r.get("key") not in new]
+        rows.sort(key=lambda r: (r["spec"]["table"], r["spec"]["row"], r["spec"].get("iterations") or 0,
+                                 r["spec"]["seed"]))
         atomic_write_text(out_dir / f"{env}.jsonl", "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows))
     return {env: len(rows) for env, rows in by_env.items()}
 
