@@ -105,7 +105,13 @@ def code_dirty() -> bool | None:
 
 
 def machine() -> dict:
-    return {"hostname": socket.gethostname(), "cpus": os.cpu_count()}
+    """Where a training ran. With torch loaded (a worker), also the CPU kernels torch chose (AVX2, AVX512, ...):
+    machines with different kernels round differently, and the same seed can train to other numbers there."""
+    out = {"hostname": socket.gethostname(), "cpus": os.cpu_count()}
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        out["cpu_capability"] = torch.backends.cpu.get_cpu_capability()
+    return out
 
 
 # ----------------------------------------------------------------------------- the store
@@ -362,6 +368,12 @@ def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = N
     return {k: done[k] for k in unique if k in done}, report
 
 
+def _where(row: dict) -> str:
+    """The machine that trained a row (its worker's; rows before workers reported it: the driver's)."""
+    where = row.get("machine") or row.get("driver") or {}
+    return where.get("hostname", "?") + (f" ({where['cpu_capability']})" if where.get("cpu_capability") else "")
+
+
 def seeds_table(done: Iterable[dict]) -> str:
     """Finished trainings (`ResultStore.done()`), one line per seed (a table's mean ± sd hides which seed
     failed): P and AER at the last iteration, the seconds it took, the commit and machine that trained it."""
@@ -384,7 +396,7 @@ def seeds_table(done: Iterable[dict]) -> str:
                      f"{spec.get('iterations') or 'default'} | {spec.get('seed', '—')} | "
                      f"{cell(result.get('performance'), '{:.3f}')} | {cell(result.get('aer'), '{:.3f}')} | "
                      f"{cell(result.get('seconds'), '{:.0f}')} | {str(r.get('commit') or '?')[:7]} | "
-                     f"{r.get('driver', {}).get('hostname', '?')} |")
+                     f"{_where(r)} |")
     return "\n".join(lines)
 
 

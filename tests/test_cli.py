@@ -97,7 +97,7 @@ def test_bench_speed_times_only_the_environments_asked_for(monkeypatch, capsys):
     assert "no speed case for 'atlantis'" in capsys.readouterr().err
 
 
-def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys):
+def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, monkeypatch):
     """A table's mean ± sd hides which seed failed: `bench seeds` prints one line per finished training,
     rows in the order they first finished, seeds in order; a failure later retried shows its success only."""
     from ifo.cli import main
@@ -108,7 +108,9 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys):
     def row(name, seed, status="done", performance=None):
         spec = {"table": "6.2", "row": name, "env": "maze10", "seed": seed, "iterations": 40}
         out = {"key": f"{name}-{seed}", "spec": spec, "status": status, "commit": "0123456789ab",
-               "driver": {"hostname": "lab-7"}}
+               "driver": {"hostname": "lab-7"}, "machine": {"hostname": "node-2", "cpu_capability": "AVX512"}}
+        if name == "BCO(α)":  # a row from before workers reported their machine
+            del out["machine"]
         if status == "done":
             out["result"] = {"performance": performance, "aer": performance - 1, "seconds": 151.4}
         return out
@@ -118,13 +120,20 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys):
         store.append(r)
     assert main(["bench", "seeds", "--store", str(store.dir)]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 6.2")]
-    assert lines == ["| 6.2 | IUPE | maze10 | 40 | 0 | 0.500 | -0.500 | 151 | 0123456 | lab-7 |",
-                     "| 6.2 | IUPE | maze10 | 40 | 1 | 0.250 | -0.750 | 151 | 0123456 | lab-7 |",
+    assert lines == ["| 6.2 | IUPE | maze10 | 40 | 0 | 0.500 | -0.500 | 151 | 0123456 | node-2 (AVX512) |",
+                     "| 6.2 | IUPE | maze10 | 40 | 1 | 0.250 | -0.750 | 151 | 0123456 | node-2 (AVX512) |",
                      "| 6.2 | BCO(α) | maze10 | 40 | 0 | -0.087 | -1.087 | 151 | 0123456 | lab-7 |"]
     assert main(["bench", "seeds", "--store", str(tmp_path / "nowhere")]) == 2
     assert "no results store" in capsys.readouterr().err
     assert main(["bench", "seeds"]) == 2
     assert "needs --store" in capsys.readouterr().err
+    import torch
+
+    from ifo.sweep import execute
+
+    monkeypatch.setenv("IFO_TORCH_THREADS", "1")  # execute sets it: restored after the test
+    ran = execute(lambda: {"aer": 1.0}, {})  # a worker says which CPU kernels trained its rows
+    assert ran["machine"]["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
 
 
 def test_train_takes_the_same_defaults_as_the_app_and_the_maze_protocol():
