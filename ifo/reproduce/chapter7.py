@@ -370,7 +370,7 @@ def ship_results(store_rows, out_dir, envs=None, seeds: int | None = None) -> di
         rows += [r for r in (read_rows(path) if path.exists() else []) if r.get("key") not in new]
         rows.sort(key=lambda r: (r["spec"]["table"], r["spec"]["row"], r["spec"].get("iterations") or 0,
                                  r["spec"]["seed"]))
-        atomic_write_text(out_dir / f"{env}.jsonl", "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows))
+        atomic_write_text(path, "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows))
     return {env: len(rows) for env, rows in by_env.items()}
 
 
