@@ -51,6 +51,7 @@ from filelock import FileLock, Timeout
 
 from ifo.data.npz import NpzError, read_npz
 from ifo.io import npz_bytes
+from ifo.runtime import file_stamp
 
 LATEST_FILE, LABEL_FILE, DEMOS_FILE, LOCK_FILE = "LATEST", "label.json", "demos.npz", ".lock"
 CONFIG_FILE, META_FILE, RECORDS_FILE, STATE_FILE = "config.json", "meta.json", "records.json", "state.npz"
@@ -446,14 +447,6 @@ def read_label(run_dir) -> str | None:
     return label
 
 
-def _stat_key(path: Path) -> tuple | None:
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return st.st_ino, st.st_size, st.st_mtime_ns
-
-
 @lru_cache(maxsize=1024)
 def _summary(run_dir: str, name: str, signature: tuple) -> tuple:
     """("ok", config JSON, iterations, last evaluation) or ("damaged", reason) for one checkpoint.
@@ -497,7 +490,7 @@ def inspect(run_dir) -> RunInfo:
 
     def read(name: str) -> tuple:
         ck = run_dir / name
-        signature = tuple(_stat_key(p) for p in (ck / META_FILE, ck / CONFIG_FILE, ck / RECORDS_FILE,
+        signature = tuple(file_stamp(p) for p in (ck / META_FILE, ck / CONFIG_FILE, ck / RECORDS_FILE,
                                                   ck / STATE_FILE, run_dir / CONFIG_FILE, run_dir / DEMOS_FILE))
         return (name, *_summary(str(run_dir), name, signature))  # a missing file raises, and is not cached
 

@@ -22,6 +22,16 @@ def limit_threads(n: int | None = None) -> int:
     return n
 
 
+def file_stamp(path: str | os.PathLike) -> tuple | None:
+    """What tells a file's versions apart (path, inode, size, modification time), None when it is missing:
+    the key of what a process keeps read from a file, so a rewritten file is read again."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return str(path), st.st_ino, st.st_size, st.st_mtime_ns
+
+
 class BoundedCache:
     """What a process keeps for every session (I_pre's random transitions, the cache entries it read,
     figures, maze backgrounds), oldest-used out once `size(value)` sums past `limit` (the newest always

@@ -380,17 +380,19 @@ def seeds_table(done: Iterable[dict]) -> str:
     done = list(done)
     if not done:
         return "No finished training in this store."
-    order: dict = {}  # rows in the order their first seed finished, then by seed
+    def cell_of(r: dict) -> tuple:
+        return r["spec"].get("table"), r["spec"].get("row"), r["spec"].get("env")
+
+    order: dict = {}  # cells in the order their first seed finished, then by seed
     for r in done:
-        order.setdefault((r["spec"].get("table"), r["spec"].get("row"), r["spec"].get("env")), len(order))
+        order.setdefault(cell_of(r), len(order))
 
     def cell(value, pattern: str) -> str:
         return "—" if not isinstance(value, (int, float)) or math.isnan(value) else pattern.format(value)
 
     lines = ["| table | row | environment | iterations | seed | P | AER | seconds | commit | machine |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(done, key=lambda r: (order[(r["spec"].get("table"), r["spec"].get("row"), r["spec"].get("env"))],
-                                         r["spec"].get("seed", 0))):
+    for r in sorted(done, key=lambda r: (order[cell_of(r)], r["spec"].get("seed", 0))):
         spec, result = r["spec"], r.get("result", {})
         lines.append(f"| {spec.get('table', '—')} | {spec.get('row', '—')} | {spec.get('env', '—')} | "
                      f"{spec.get('iterations') or 'default'} | {spec.get('seed', '—')} | "

@@ -202,6 +202,52 @@ def test_a_second_sweep_ships_beside_the_first_and_each_budget_reads_alone(tmp_p
     assert sorted((r["method"], r["aer"]) for r in longer) == [("GAIL", 491.0), ("GAIL", 499.0), ("Random", 20.0)]
 
 
+def test_two_shippers_at_once_keep_each_others_cells(tmp_path, monkeypatch):
+    """Two sweeps shipping into one file at the same time: the second waits for the first, so neither's
+    cells are lost (without the lock, the one that read first wrote last and dropped the other's)."""
+    import threading
+
+    import ifo.sweep as sweep_mod
+
+    real, reading, go, calls = sweep_mod.read_rows, threading.Event(), threading.Event(), []
+
+    def slow_first_read(path):
+        calls.append(path)
+        rows = real(path)
+        if len(calls) == 1:  # the first shipper has read the file and is about to write it
+            reading.set()
+            go.wait(10)
+        return rows
+
+    ch7.ship_results(_store_rows(), tmp_path)  # the file exists: both shippers read it
+    monkeypatch.setattr(sweep_mod, "read_rows", slow_first_read)
+    first = threading.Thread(target=ch7.ship_results, args=(_longer_budget_rows(), tmp_path))
+    first.start()
+    assert reading.wait(10)
+    extra = [dict(r, key=r["key"] + "-b", spec={**r["spec"], "seed": r["spec"]["seed"] + 10})
+             for r in _longer_budget_rows() if r["spec"]["row"] == "GAIL"]
+    second = threading.Thread(target=ch7.ship_results, args=(extra, tmp_path))
+    second.start()
+    second.join(1)  # with the lock it waits here for the first
+    go.set()
+    first.join(10)
+    second.join(10)
+    keys = {json.loads(line)["key"] for line in (tmp_path / "cartpole.jsonl").read_text().splitlines()}
+    assert {r["key"] for r in _longer_budget_rows() + extra} <= keys and len(keys) == 12 + 3 + 2
+
+
+def test_the_shipped_results_are_read_again_when_the_file_changes(tmp_path, monkeypatch):
+    path = tmp_path / "cartpole.jsonl"
+    monkeypatch.setattr(ch7, "shipped_results_path", lambda env: path)
+    assert ch7.load_shipped_results("cartpole") == []
+    ch7.ship_results(_store_rows(), tmp_path)
+    first = ch7.load_shipped_results("cartpole")
+    first[0]["aer"] = -1e9  # a caller's own dicts: the next caller does not see this
+    assert -1e9 not in [r["aer"] for r in ch7.load_shipped_results("cartpole")]
+    ch7.ship_results(_longer_budget_rows(), tmp_path)
+    assert len(ch7.load_shipped_results("cartpole")) == len(first) + 3
+
+
 def test_a_live_cell_is_a_plain_run_config_on_that_levels_demonstrations():
     cfg = ch7.live_config("cartpole", "ilpo", 3, seed=2, iterations=4, overrides={"pre_size": 2000, "nope": 1})
     assert cfg.expert_level == 3 and cfg.demos.endswith("cartpole-level3.npz") and cfg.seed == 2

@@ -20,7 +20,7 @@ from ifo.data.demos import (MAX_DEMO_BYTES, DemoError, Demonstrations, ExpertTra
                             shipped_actions_path, shipped_demos_path)
 from ifo.data.npz import NpzError, read_npz
 from ifo.envs import EnvSpec
-from ifo.runtime import BoundedCache
+from ifo.runtime import BoundedCache, file_stamp
 
 
 MAZE_KEYS = ("layouts", "episode_layout", "positions", "next_positions", "episode_starts", "rewards")
@@ -94,7 +94,7 @@ def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_si
         raise DemoError(f"no shipped demonstrations at {path}; make them with "
                         f"`python -m ifo experts demos --env {spec.name}" + (f" --level {level}`" if level != 1 else "`"))
     files = [path, shipped_actions_path(spec)] if level == 1 else [path]
-    stamps = tuple((str(f), st.st_ino, st.st_size, st.st_mtime_ns) for f in files if f.exists() for st in [f.stat()])
+    stamps = tuple(stamp for stamp in map(file_stamp, files) if stamp is not None)
     drawn = (obs_mode, image_size, episodes) if spec.is_maze else None  # what a maze's frames depend on
     key = (spec.name, drawn, level, stamps)
     shared = _loaded.get_or_build(key, lambda: _read_only(_load(spec, path, obs_mode, image_size, episodes, level)))

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ifo.reproduce import Column, Row, Table, register
+from ifo.runtime import BoundedCache, file_stamp
 
 ENVS_7 = ("cartpole", "acrobot", "mountaincar", "lunarlander")
 LEVELS = (1, 2, 3, 4, 5)
@@ -364,13 +365,16 @@ def ship_results(store_rows, out_dir, envs=None, seeds: int | None = None) -> di
             by_env.setdefault(env, []).append(row)
     from ifo.io import atomic_write_text
 
+    from filelock import FileLock
+
     for env, rows in by_env.items():
         path = out_dir / f"{env}.jsonl"
         new = {r["key"] for r in rows}  # cells shipped before from other sweeps (another budget) stay
-        rows += [r for r in (read_rows(path) if path.exists() else []) if r.get("key") not in new]
-        rows.sort(key=lambda r: (r["spec"]["table"], r["spec"]["row"], r["spec"].get("iterations") or 0,
-                                 r["spec"]["seed"]))
-        atomic_write_text(path, "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows))
+        with FileLock(str(out_dir / f".{env}.jsonl.lock"), timeout=60):  # two shippers: neither drops the other's
+            rows += [r for r in (read_rows(path) if path.exists() else []) if r.get("key") not in new]
+            rows.sort(key=lambda r: (r["spec"]["table"], r["spec"]["row"], r["spec"].get("iterations") or 0,
+                                     r["spec"]["seed"]))
+            atomic_write_text(path, "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows))
     return {env: len(rows) for env, rows in by_env.items()}
 
 
@@ -466,11 +470,19 @@ def shipped_results_path(env: str):
 
 
 def load_shipped_results(env: str) -> list[dict]:
-    """The shipped Chapter 7 results of `env` (assets/resilience/<env>.jsonl, size-checked), flat; [] if none."""
+    """The shipped Chapter 7 results of `env` (assets/resilience/<env>.jsonl, size-checked), flat; [] if none.
+    Parsed once per version of the file and process (the page reruns on every click); each caller gets
+    its own dicts."""
     from ifo.sweep import read_rows
 
     path = shipped_results_path(env)
-    return results_from_rows(read_rows(path)) if path.exists() else []
+    stamp = file_stamp(path)
+    if stamp is None:
+        return []
+    return [dict(r) for r in _SHIPPED.get_or_build(stamp, lambda: results_from_rows(read_rows(path)))]
+
+
+_SHIPPED = BoundedCache(8)  # flat shipped results, by the file's stamp
 
 
 def thesis_curves(env: str, methods=None) -> dict[str, list[tuple[float, float]]]:
