@@ -227,14 +227,19 @@ def choose(page, label: str, option: str, where=None) -> None:
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     box = (where if where is not None else sidebar(page)).get_by_role("combobox", name=label)
-    box.click()
     choice = page.get_by_role("option", name=option, exact=True)
-    try:  # a click that lands while the page settles (a chart drawn, an expander opened) may not open the list
-        choice.wait_for(timeout=5_000)
-    except PlaywrightTimeout:
-        box.click()
-    choice.click()
-    expect(box).to_have_value(option)
+    for attempt in range(3):  # a click that lands while the page settles (a chart drawn, an expander opened,
+        try:                  # the list still opening) may not open the list or not pick the option: again
+            if box.get_attribute("aria-expanded") != "true":
+                box.click()
+            choice.wait_for(timeout=10_000)
+            choice.click()
+            expect(box).to_have_value(option, timeout=10_000)
+            break
+        except (PlaywrightTimeout, AssertionError):
+            if attempt == 2:
+                raise
+            page.keyboard.press("Escape")  # close a list left open, then start over
     wait_idle(page, LONG_MS)
 
 

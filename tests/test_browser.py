@@ -124,6 +124,28 @@ def test_run_n_stops_by_itself_pause_stops_a_play_and_reset_starts_again(app, pa
     assert not error_boxes(page).count()
 
 
+# A chart each method draws after one Step on CartPole (BCO(α) and IUPE are stepped by the tests above).
+METHOD_CHART = {"BC": "Accuracy", "BCO": "IDM predictions on the expert's transitions",
+                "ABCO": "Sampling mixture of I_s", "CRIL": "Learning from its own rewards", "SAIL": "Replay memory",
+                "GAIL": "Can the discriminator tell", "GAIfO": "Can the discriminator tell",
+                "ILPO": "ILPO's latent actions"}
+
+
+@pytest.mark.parametrize("method", list(METHOD_CHART))
+def test_step_every_other_method_on_cartpole(app, page, method):
+    """Every method a teacher can choose opens and Steps on a vector task: its settings draw (CRIL's once
+    raised an error the moment it was chosen), a Step draws the method's own chart, and no error shows."""
+    open_app(page, app, "step")
+    choose(page, "Method", method)
+    expect(page.get_by_text(f"Current run: {method} on CartPole, seed 0")).to_be_visible()
+    expect(error_boxes(page)).to_have_count(0)
+    step(page, 1)
+    expect(error_boxes(page)).to_have_count(0)
+    chart = page.locator(CHART).filter(has_text=METHOD_CHART[method])
+    expect(chart.first).to_be_visible()
+    expect(page.locator(CHART).filter(has_text="Average episodic reward")).to_have_count(1)
+
+
 # ----------------------------------------------------------------------------- 2. a maze
 @pytest.mark.parametrize("method", ["BCO(α)", "ABCO", "IUPE"], ids=["bco-alpha", "abco", "iupe"])
 def test_step_a_maze(app, page, method):

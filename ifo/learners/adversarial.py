@@ -158,7 +158,7 @@ class AdversarialLearner(Learner):
         from stable_baselines3.common.vec_env import DummyVecEnv
 
         cfg = config
-        ctx.require_vector_states("GAIL and GAIfO here")
+        ctx.require_vector_states("GAIL" if cfg.discriminator_input == "state-action" else "GAIfO")
         if cfg.discriminator_input == "state-action" and ctx.expert_actions is None:
             raise ValueError("a (s, a) discriminator (GAIL) learns from the expert's actions, and this run has "
                              "none: GAIL needs demonstrations with actions, GAIfO does not")

@@ -223,15 +223,17 @@ def _draw_widget(s: Spec, key: str, default, bind: dict, disabled: bool, optiona
         return st.toggle(s.label, value=bool(default), key=key, help=help_text, disabled=disabled, **bind)
     if s.kind in (int, float):
         step = 1 if s.kind is int else None
-        low = s.low if s.low is None or s.kind is float else int(s.low)
-        high = s.high if s.high is None or s.kind is float else int(s.high)
+        # Streamlit refuses bounds of mixed types (CRIL's share_k is a float bounded by the int 100)
+        low = None if s.low is None else s.kind(s.low)
+        high = None if s.high is None else s.kind(s.high)
         if optional:  # empty: the default (shown as the placeholder)
             value = st.number_input(s.label, min_value=low, max_value=high, value=None, step=step, key=key,
                                     help=help_text, disabled=disabled, placeholder=f"default: {default:g}"
                                     if default is not None else "default", format="%g" if s.kind is float else None,
                                     **bind)
             return value
-        return st.number_input(s.label, min_value=low, max_value=high, value=default, step=step, key=key,
+        return st.number_input(s.label, min_value=low, max_value=high, value=None if default is None else
+                               s.kind(default), step=step, key=key,
                                help=help_text, disabled=disabled, **bind)
     if s.kind is tuple:
         text = st.text_input(s.label, value="", key=key, help=help_text, disabled=disabled,
