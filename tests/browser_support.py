@@ -232,6 +232,8 @@ def choose(page, label: str, option: str, where=None) -> None:
         try:                  # the list still opening) may not open the list or not pick the option: again
             if box.get_attribute("aria-expanded") != "true":
                 box.click()
+            if attempt:  # type to filter, as a person does in a long list: the option comes to the top
+                box.press_sequentially(option)
             choice.wait_for(timeout=10_000)
             choice.click()
             expect(box).to_have_value(option, timeout=10_000)
