@@ -222,9 +222,8 @@ def step(page, to: int, total: int | None = None) -> None:
 
 def choose(page, label: str, option: str, where=None) -> None:
     """Pick `option` in the select box labelled `label` (in the sidebar unless `where` says otherwise)."""
-    from playwright.sync_api import expect
-
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
+    from playwright.sync_api import expect
 
     box = (where if where is not None else sidebar(page)).get_by_role("combobox", name=label)
     choice = page.get_by_role("option", name=option, exact=True)

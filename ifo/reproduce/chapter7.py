@@ -469,6 +469,9 @@ def shipped_results_path(env: str):
     return ASSETS / "resilience" / f"{env}.jsonl"
 
 
+_SHIPPED = BoundedCache(8)  # flat shipped results, by the file's stamp
+
+
 def load_shipped_results(env: str) -> list[dict]:
     """The shipped Chapter 7 results of `env` (assets/resilience/<env>.jsonl, size-checked), flat; [] if none.
     Parsed once per version of the file and process (the page reruns on every click); each caller gets
@@ -480,9 +483,6 @@ def load_shipped_results(env: str) -> list[dict]:
     if stamp is None:
         return []
     return [dict(r) for r in _SHIPPED.get_or_build(stamp, lambda: results_from_rows(read_rows(path)))]
-
-
-_SHIPPED = BoundedCache(8)  # flat shipped results, by the file's stamp
 
 
 def thesis_curves(env: str, methods=None) -> dict[str, list[tuple[float, float]]]:
