@@ -101,7 +101,7 @@ FIGURES: list[FigureView] = [
                "The same score rescaled so that a random policy is 0 and the expert is 1.",
                _has("evaluation", "performance"),
                lambda r, env, it, theme: figures.learning_curve(r, "performance", iteration=it, theme=theme)),
-    FigureView("idm", "IDM predictions vs hidden truth", "Thesis Fig 5.2/6.2a",
+    FigureView("idm", "IDM predictions on the expert's transitions", "Thesis Fig 5.2/6.2a",
                "What the inverse dynamics model says the expert did on each demonstrated transition, beside what "
                "it really did. The true actions are hidden from the learner and shown only to you.",
                _has("idm"), lambda r, env, it, theme: figures.idm_predictions(r, env.action_names, iteration=it, theme=theme)),
@@ -111,7 +111,7 @@ FIGURES: list[FigureView] = [
                "the policy can no longer learn.",
                _has("idm"),
                lambda r, env, it, theme: figures.idm_predictions_over_time(_upto(r, it), env.action_names, theme=theme)),
-    FigureView("idm_confusion", "Which action the IDM guesses for which", "Not in the thesis: uses the hidden truth",
+    FigureView("idm_confusion", "The IDM's labels against the truth", "Not in the thesis: uses the hidden truth",
                "Each row is what the expert really did, each column what the IDM guessed: a good IDM puts "
                "everything on the diagonal.",
                _has("idm", "confusion"), lambda r, env, it, theme: figures.idm_confusion(r, env.action_names, iteration=it, theme=theme)),
@@ -120,7 +120,7 @@ FIGURES: list[FigureView] = [
                "truth) how much it gives the action the expert really took.",
                _has("idm", "confidence_histogram"),
                lambda r, env, it, theme: figures.idm_confidence(r, env.action_names, iteration=it, theme=theme)),
-    FigureView("accuracy", "Pseudo-label accuracy", "Not in the thesis: uses the hidden true actions",
+    FigureView("accuracy", "Accuracy", "Not in the thesis: uses the hidden true actions",
                "How often the IDM's labels and the policy's choices match the expert's hidden actions, and how well "
                "the IDM does on random transitions it did not train on.",
                _any(_has("idm"), _has("policy", "expert_accuracy")),
@@ -141,7 +141,7 @@ FIGURES: list[FigureView] = [
                "The share of the policy's own runs in each iteration that reached the goal: it sets how much of I_s "
                "comes from those runs.",
                _has("rollouts"), lambda r, env, it, theme: figures.win_probability(r, iteration=it, theme=theme)),
-    FigureView("attention_gates", "What the attention module does", "Thesis Sec 5.3 (the authors' module)",
+    FigureView("attention_gates", "How much the attention blocks change the input", "Thesis Sec 5.3 (the authors' module)",
                "On vector states the thesis's attention block reduces to x + γ·(W x + b), γ starting at 0: it is a "
                "learned gate, not a map over variables. γ and the size of what it adds show how much it is used.",
                _any(_has("policy", "gates"), _has("idm", "gates")),
@@ -160,12 +160,12 @@ FIGURES: list[FigureView] = [
                "with random moves (1): it falls as the policy's runs start to look like the expert's.",
                _has("attention", "mean_image_distance"),
                lambda r, env, it, theme: figures.action_distance_curves(_upto(r, it), env.action_names, theme=theme)),
-    FigureView("policy_map", "The policy over the state space", "Thesis Figs 8.2, 8.3 (Table 8.1)",
+    FigureView("policy_map", "The policy's choice over the state space", "Thesis Figs 8.2, 8.3 (Table 8.1)",
                "The policy's most likely action over a grid of positions and velocities, beside a reference "
                "policy's; KL says how far apart they are.",
                _has("policy_map"),
                lambda r, env, it, theme: figures.policy_map(r, iteration=it, action_names=env.action_names, theme=theme), wide=True),
-    FigureView("td", "Temporal-difference learning", "Thesis Sec 8.2 (Algorithm 8.1)",
+    FigureView("td", "Learning from its own rewards (temporal-difference updates)", "Thesis Sec 8.2 (Algorithm 8.1)",
                "CRIL also learns from its own rewards: the TD loss of its updates, the range of its Q-values, and ε, "
                "the share of random actions in its own runs, taken from the imitation step's exploration.",
                _has("td"), lambda r, env, it, theme: figures.td_curves(r, iteration=it, theme=theme)),
@@ -178,15 +178,15 @@ FIGURES: list[FigureView] = [
                # on the page for learners that also learn from rewards (CRIL, GAIL, GAIfO); exported for all
                _all(_has("samples"), _any(_has("td"), _has("generator"))),
                lambda r, env, it, theme: figures.sample_count(r, iteration=it, theme=theme)),
-    FigureView("discriminator", "Can the discriminator tell them apart?", "Thesis Table 9.3, Sec 3.3–3.4",
+    FigureView("discriminator", "Can the discriminator tell the expert from the learner?", "Thesis Table 9.3, Sec 3.3–3.4",
                "How often the discriminator recognises the expert's and the agent's behaviour; near 50% it can no "
                "longer tell them apart.",
                _has("discriminator"), lambda r, env, it, theme: figures.discriminator_curves(r, iteration=it, theme=theme)),
-    FigureView("generator", "Generator loss", "Thesis Fig 9.2, Eq 9.2",
+    FigureView("generator", "Training the generator (the policy)", "Thesis Fig 9.2, Eq 9.2",
                "The error of the model that predicts the next state (SAIL) or of the policy-gradient learner "
                "(GAIL, GAIfO).",
                _has("generator"), lambda r, env, it, theme: figures.generator_loss(r, iteration=it, theme=theme)),
-    FigureView("latent", "Latent actions", "Thesis Sec 3.2 (ILPO)",
+    FigureView("latent", "ILPO's latent actions", "Thesis Sec 3.2 (ILPO)",
                "How many expert transitions each latent action explains, and which real action each one was "
                "mapped to.",
                _has("latent"), lambda r, env, it, theme: figures.latent_actions(r, iteration=it, action_names=env.action_names, theme=theme)),

@@ -405,3 +405,27 @@ def test_resilience_curves_show_fidelity_and_performance_and_the_thesis_dotted()
     assert not empty.data and "No results" in empty.layout.annotations[0].text
     with pytest.raises(ValueError):
         figures.resilience_curves([], "cartpole", metric="nope")
+
+
+def test_every_chart_draws_its_registry_title(tiny_config):
+    """A chart is named once: the title a lesson's hide list shows (the registry's) is the one drawn on
+    the page and on the slides, maybe followed by the iteration. Real one-iteration runs of every
+    method, plus the runs that draw attention, the policy map and Grad-CAM."""
+    from ifo.figure_registry import FIGURES, EnvView, views_for
+    from ifo.methods import METHODS
+    from ifo.run import Run
+
+    cases = [dict(method=m) for m in METHODS] + [
+        dict(method="abco", attention="features"), dict(env="mountaincar", method="bco"),
+        dict(env="maze3", method="iupe")]
+    drawn = {}
+    for case in cases:
+        config = tiny_config(**case)
+        run = Run(config)
+        run.step()
+        env = EnvView.of(config.to_dict())
+        for view in views_for(run.records):
+            drawn[view.key] = view.draw(run.records, env, None, "screen").layout.title.text
+    assert sorted(drawn) == sorted(v.key for v in FIGURES), "a figure no case above draws"
+    for view in FIGURES:
+        assert drawn[view.key].startswith(view.title), (view.key, view.title, drawn[view.key])
