@@ -525,11 +525,11 @@ def test_the_resilience_page_draws_fig_7_1_and_runs_a_cell(app, page):
     expect(charts).to_have_count(2)  # AER against the expert's AER; fidelity beside it
     expect(charts.first).to_contain_text("expert")
     expect(charts.first).to_contain_text("IUPE")
-    page.get_by_text("40 iterations, 100 demonstrations: GAIL").click()  # the shipped longer budget
-    expect(charts.first).not_to_contain_text("IUPE")
+    page.get_by_text("40 iterations, 100 demonstrations: GAIL").click()  # the shipped longer budget: no BC
+    expect(charts.first).not_to_contain_text("BC")
     expect(charts.first).to_contain_text("GAIL")
     page.get_by_text("5 iterations, 20 demonstrations: BC, GAIL, ILPO, IUPE").click()
-    expect(charts.first).to_contain_text("IUPE")
+    expect(charts.first).to_contain_text("BC")
     page.get_by_text("The expert levels (Table 7.1)").click()
     expect(page.get_by_text("Levels 2-5 are earlier checkpoints")).to_be_visible()
 
