@@ -181,6 +181,21 @@ def test_a_link_naming_the_maze_and_method_as_the_cli_does_opens_them(app, page)
     expect(page.locator(CHART).filter(has_text="Where the policy looks (Grad-CAM)")).to_be_visible()
 
 
+def test_a_link_opens_the_resilience_study_on_the_environment_it_names(app, page):
+    """`/resilience?resilience.env=acrobot` opens the study on Acrobot (it used to open CartPole); choosing
+    another environment writes it into the address bar, so a reload keeps it."""
+    open_app(page, app, "resilience", **{"resilience.env": "acrobot"})
+    expect(page.get_by_role("heading", name="Resilience to sub-optimal experts")).to_be_visible()
+    expect(page.locator(MAIN).get_by_role("combobox", name="Environment")).to_have_value("Acrobot")
+    expect(page.locator(CHART).first).to_contain_text("GAIL")  # Acrobot's shipped results drawn
+    choose(page, "Environment", "MountainCar", where=page.locator(MAIN))
+    expect(page).to_have_url(re.compile(r"resilience\.env=Mountain"))
+    page.reload()
+    wait_idle(page)
+    expect(page.locator(MAIN).get_by_role("combobox", name="Environment")).to_have_value("MountainCar")
+    expect(error_boxes(page)).to_have_count(0)
+
+
 # ----------------------------------------------------------------------------- 3. an example run
 def test_open_an_example_run_and_continue_it(app, page, snap):
     """"Open a copy" of a shipped example run: it opens finished on the step page; one more

@@ -327,6 +327,16 @@ def test_the_page_offers_each_shipped_budget_and_draws_one_at_a_time(app_env, mo
     assert not at.exception and [r.key for r in at.radio] == ["resilience.metric"]  # no budget to choose
 
 
+def test_a_link_opens_the_study_on_the_environment_it_names(app_env):
+    for named in ("acrobot", "Acrobot"):  # the configuration's name, or the label the widget writes
+        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+        at.query_params.update({"user": "resiltest04", "resilience.env": named})
+        at.run()
+        at.switch_page(PAGE).run()
+        assert not at.exception, at.exception
+        assert at.selectbox(key="resilience.env").value == "acrobot", named
+
+
 def test_the_page_shows_the_shipped_results_and_the_expert_levels(app_env):
     at = open_page("resiltest02")
     assert not at.exception

@@ -14,7 +14,7 @@ from ifo.ui import storage
 from ifo.ui.export import chart_downloads
 from ifo.ui.panels import CHART_CONFIG
 from ifo.ui.queue import QueueFull, get_queue
-from ifo.ui.settings import env_label, fast_overrides
+from ifo.ui.settings import env_label, fast_overrides, link_by_name
 
 limit_threads()
 st.title("Resilience to sub-optimal experts")
@@ -25,7 +25,11 @@ st.caption("Thesis Chapter 7: BC, GAIL, ILPO and IUPE learn from five experts of
            "trajectory fidelity (how close the agent's states stay to the expert's; 0 = the same states).")
 
 user = storage.current_user()
-env = st.selectbox("Environment", list(ch7.ENVS_7), format_func=env_label, key="resilience.env")
+# The environment, budget, thesis lines and side metric live in the URL, so a link opens the same view;
+# `?resilience.env=acrobot` (the configuration's name) works as well as the label the widget writes.
+URL = {"bind": "query-params"}
+link_by_name("resilience.env", ch7.ENVS_7, env_label)
+env = st.selectbox("Environment", list(ch7.ENVS_7), format_func=env_label, key="resilience.env", **URL)
 labels = [label for label, _ in ch7.METHODS_7]
 methods = st.multiselect("Methods", labels, default=labels, key="resilience.methods")
 every_budget = ch7.load_shipped_results(env)
@@ -35,7 +39,7 @@ st.subheader("Fig 7.1 from the shipped results")
 budgets = ch7.budgets(every_budget)
 if len(budgets) > 1:  # e.g. every method with 5 rounds, and GAIL again with 40
     budget = st.radio("Training budget", budgets, format_func=lambda b: ch7.budget_label(every_budget, b),
-                      key=f"resilience.budget.{env}",
+                      key=f"resilience.budget.{env}", **URL,
                       help="Iterations and demonstrations per training. Adversarial learners (GAIL) need many "
                            "more rounds than the others: a short budget says more about that than about the expert.")
     shipped = ch7.in_budget(every_budget, budget)
@@ -50,7 +54,8 @@ else:
     runs = len([r for r in results if not r["reference"]])
     st.caption(f"{runs} trainings from `assets/resilience/{env}.jsonl`; iterations per run: "
                f"{', '.join(map(str, iters)) or 'per-method defaults'}. Bars: one sd over seeds.")
-thesis = ch7.thesis_curves(env, methods) if st.toggle("Show the thesis's lines (dotted)", key="resilience.thesis") else None
+show_thesis = st.toggle("Show the thesis's lines (dotted)", key="resilience.thesis", **URL)
+thesis = ch7.thesis_curves(env, methods) if show_thesis else None
 left, right = st.columns(2)
 with left:
     fig = figures.resilience_curves(results, env, thesis=thesis)
@@ -59,7 +64,7 @@ with left:
                     draw=lambda theme="slide": figures.resilience_curves(results, env, theme, thesis=thesis))
 with right:
     metric = st.radio("Beside it", ["fidelity", "performance", "performance_expert1"], horizontal=True,
-                      format_func=figures.RESILIENCE_METRICS.get, key="resilience.metric")
+                      format_func=figures.RESILIENCE_METRICS.get, key="resilience.metric", **URL)
     other = figures.resilience_curves(results, env, metric=metric)
     st.plotly_chart(other, key="resilience.other", config=CHART_CONFIG)
     chart_downloads(other, f"fig-7-1-{env}-{metric}", key="resilience.other.dl", note=False,

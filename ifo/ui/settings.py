@@ -184,7 +184,7 @@ def _apply_preset(key: str) -> None:
     st.session_state[_k(key, "preset")] = None  # the selectbox only applies; the caption says what matches
 
 
-def _link_by_name(widget_key: str, choices, label) -> None:
+def link_by_name(widget_key: str, choices, label) -> None:
     """A link may name a choice as the configuration does (`?step.env=maze3`), not by the label the bound
     widget writes (`Maze 3x3`), which Streamlit would drop (opening the default). Called before the
     widget is drawn: it starts with the named choice."""
@@ -199,7 +199,7 @@ def _link_by_name(widget_key: str, choices, label) -> None:
 def _widget(s: Spec, key: str, default, bind: dict, disabled: bool = False, optional: bool = False):
     """One widget for one field, as its declaration says (labels, bounds, help)."""
     if bind and s.choices and s.labels:
-        _link_by_name(key, s.choices, lambda v: s.labels.get(v, v))
+        link_by_name(key, s.choices, lambda v: s.labels.get(v, v))
     return _draw_widget(s, key, default, bind, disabled, optional)
 
 
@@ -253,8 +253,8 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches_show
     b = {"bind": "query-params"} if bind else {}
     run_specs = {s.name: s for s in specs(RunConfig)}
     if bind:
-        _link_by_name(_k(key, "env"), ENVS, env_label)
-        _link_by_name(_k(key, "method"), METHODS, method_label)
+        link_by_name(_k(key, "env"), ENVS, env_label)
+        link_by_name(_k(key, "method"), METHODS, method_label)
     with where:
         st.subheader("Run settings")
         env = st.selectbox("Environment", list(ENVS), format_func=env_label, key=_k(key, "env"), **b,
