@@ -748,14 +748,15 @@ RESILIENCE_METRICS = {"aer": "AER", "performance": "P (against this expert)",
 
 
 def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", metric: str = "aer",
-                      thesis: dict | None = None) -> go.Figure:
+                      thesis: dict | None = None, colors_by: Sequence[str] | None = None) -> go.Figure:
     """Thesis Fig 7.1: each method's result against the expert's AER, one line per method over the expert
     levels (mean over seeds, bars one sd), for one environment.
 
     `results`: flat dicts with env, method, level, expert_aer and the metric (aer, performance,
     performance_expert1 or fidelity); rows whose method is "Random" or "Expert..." are references: the
     expert is drawn as the line y = x (AER), the random policy as a dashed level. `thesis`: method -> list
-    of (expert AER, agent AER) drawn dotted, for comparison (AER only)."""
+    of (expert AER, agent AER) drawn dotted, for comparison (AER only). `colors_by`: every method that may
+    appear, in order, so a method keeps its colour when a budget or a choice leaves others out."""
     if metric not in RESILIENCE_METRICS:
         raise ValueError(f"metric must be one of {', '.join(RESILIENCE_METRICS)}, got {metric!r}")
     import numpy as np
@@ -772,7 +773,8 @@ def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", 
         fig.add_trace(go.Scatter(x=xs, y=xs, mode="lines+markers", name="expert",
                                  line=dict(color=COLORS[0], width=2, dash="dash"), marker=dict(size=5)))
     methods = list(dict.fromkeys(r["method"] for r in learners))
-    for k, method in enumerate(methods):
+    palette = list(colors_by or []) + [m for m in methods if m not in (colors_by or [])]
+    for method in methods:
         by_level: dict[int, list[dict]] = {}
         for r in learners:
             if r["method"] == method and r.get(metric) is not None and np.isfinite(r[metric]):
@@ -781,7 +783,7 @@ def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", 
                          float(np.std([r[metric] for r in rs])), level, len(rs)) for level, rs in by_level.items())
         if not points:
             continue
-        color = COLORS[(k + 1) % len(COLORS)]
+        color = COLORS[(palette.index(method) + 1) % len(COLORS)]
         fig.add_trace(go.Scatter(
             x=[p[0] for p in points], y=[p[1] for p in points], mode="lines+markers", name=method,
             line=dict(color=color), error_y=dict(type="data", array=[p[2] for p in points], visible=True),

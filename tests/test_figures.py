@@ -407,6 +407,17 @@ def test_resilience_curves_show_fidelity_and_performance_and_the_thesis_dotted()
         figures.resilience_curves([], "cartpole", metric="nope")
 
 
+def test_a_method_keeps_its_colour_when_a_budget_leaves_another_out():
+    """The longer budget has no BC: ILPO must not take BC's colour (a class compares the two budgets)."""
+    every = ["BC", "GAIL", "ILPO", "IUPE"]
+    both = figures.resilience_curves(_resilience_results(), "cartpole", colors_by=every)
+    without_bc = figures.resilience_curves([r for r in _resilience_results() if r["method"] != "BC"], "cartpole",
+                                           colors_by=every)
+    colour = {fig_name: {t.name: t.line.color for t in fig.data} for fig_name, fig in
+              (("both", both), ("without BC", without_bc))}
+    assert colour["both"]["ILPO"] == colour["without BC"]["ILPO"] != colour["both"]["BC"]
+
+
 def test_every_chart_draws_its_registry_title(tiny_config):
     """A chart is named once: the title a lesson's hide list shows (the registry's) is the one drawn on
     the page and on the slides, maybe followed by the iteration. Real one-iteration runs of every

@@ -58,17 +58,19 @@ show_thesis = st.toggle("Show the thesis's lines (dotted)", key="resilience.thes
 thesis = ch7.thesis_curves(env, methods) if show_thesis else None
 left, right = st.columns(2)
 with left:
-    fig = figures.resilience_curves(results, env, thesis=thesis)
+    fig = figures.resilience_curves(results, env, thesis=thesis, colors_by=labels)
     st.plotly_chart(fig, key="resilience.aer", config=CHART_CONFIG)
     chart_downloads(fig, f"fig-7-1-{env}", key="resilience.aer.dl",
-                    draw=lambda theme="slide": figures.resilience_curves(results, env, theme, thesis=thesis))
+                    draw=lambda theme="slide": figures.resilience_curves(results, env, theme, thesis=thesis,
+                                                                         colors_by=labels))
 with right:
     metric = st.radio("Beside it", ["fidelity", "performance", "performance_expert1"], horizontal=True,
                       format_func=figures.RESILIENCE_METRICS.get, key="resilience.metric", **URL)
-    other = figures.resilience_curves(results, env, metric=metric)
+    other = figures.resilience_curves(results, env, metric=metric, colors_by=labels)
     st.plotly_chart(other, key="resilience.other", config=CHART_CONFIG)
     chart_downloads(other, f"fig-7-1-{env}-{metric}", key="resilience.other.dl", note=False,
-                    draw=lambda theme="slide": figures.resilience_curves(results, env, theme, metric=metric))
+                    draw=lambda theme="slide": figures.resilience_curves(results, env, theme, metric=metric,
+                                                                         colors_by=labels))
 rows = ch7.summary_rows(results, env, methods + [ch7.expert_label(k) for k in ch7.LEVELS])
 if rows:
     st.dataframe(rows, hide_index=True, key="resilience.table")

@@ -392,7 +392,8 @@ def write_figures(results: list[dict], envs, out_dir, log=print) -> list:
     for env in envs:
         for metric in ("aer", "fidelity"):
             fig = figures.resilience_curves(results, env, "slide", metric=metric,
-                                            thesis=thesis_curves(env) if metric == "aer" else None)
+                                            thesis=thesis_curves(env) if metric == "aer" else None,
+                                            colors_by=[label for label, _ in METHODS_7])
             stem = out_dir / f"fig-7-1-{env}" if metric == "aer" else out_dir / f"fig-7-1-{env}-fidelity"
             try:
                 stem.with_suffix(".svg").write_bytes(figure_bytes(fig, "svg"))
