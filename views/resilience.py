@@ -4,6 +4,8 @@ expert levels (Table 7.1), and one cell of the study trained live through the ba
 Thin: the numbers come from `ifo.reproduce.chapter7` (results, the thesis's numbers, configurations),
 the figure from `ifo.figures.resilience_curves`, the training from `ifo.ui.queue`.
 """
+from functools import partial
+
 import streamlit as st
 
 from ifo import figures
@@ -30,7 +32,7 @@ user = storage.current_user()
 URL = {"bind": "query-params"}
 link_by_name("resilience.env", ch7.ENVS_7, env_label)
 env = st.selectbox("Environment", list(ch7.ENVS_7), format_func=env_label, key="resilience.env", **URL)
-labels = [label for label, _ in ch7.METHODS_7]
+labels = ch7.LABELS_7
 methods = st.multiselect("Methods", labels, default=labels, key="resilience.methods")
 every_budget = ch7.load_shipped_results(env)
 shipped = every_budget
@@ -57,20 +59,19 @@ else:
 show_thesis = st.toggle("Show the thesis's lines (dotted)", key="resilience.thesis", **URL)
 thesis = ch7.thesis_curves(env, methods) if show_thesis else None
 left, right = st.columns(2)
-with left:
-    fig = figures.resilience_curves(results, env, thesis=thesis, colors_by=labels)
+with left:  # one drawing for the page and the slides (`draw`), in their two themes
+    draw_aer = partial(figures.resilience_curves, results, env, thesis=thesis, colors_by=labels)
+    fig = draw_aer()
     st.plotly_chart(fig, key="resilience.aer", config=CHART_CONFIG)
-    chart_downloads(fig, f"fig-7-1-{env}", key="resilience.aer.dl",
-                    draw=lambda theme="slide": figures.resilience_curves(results, env, theme, thesis=thesis,
-                                                                         colors_by=labels))
+    chart_downloads(fig, f"fig-7-1-{env}", key="resilience.aer.dl", draw=lambda theme="slide": draw_aer(theme=theme))
 with right:
     metric = st.radio("Beside it", ["fidelity", "performance", "performance_expert1"], horizontal=True,
                       format_func=figures.RESILIENCE_METRICS.get, key="resilience.metric", **URL)
-    other = figures.resilience_curves(results, env, metric=metric, colors_by=labels)
+    draw_other = partial(figures.resilience_curves, results, env, metric=metric, colors_by=labels)
+    other = draw_other()
     st.plotly_chart(other, key="resilience.other", config=CHART_CONFIG)
     chart_downloads(other, f"fig-7-1-{env}-{metric}", key="resilience.other.dl", note=False,
-                    draw=lambda theme="slide": figures.resilience_curves(results, env, theme, metric=metric,
-                                                                         colors_by=labels))
+                    draw=lambda theme="slide": draw_other(theme=theme))
 rows = ch7.summary_rows(results, env, methods + [ch7.expert_label(k) for k in ch7.LEVELS])
 if rows:
     st.dataframe(rows, hide_index=True, key="resilience.table")

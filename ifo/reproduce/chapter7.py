@@ -31,6 +31,7 @@ from ifo.runtime import BoundedCache, file_stamp
 ENVS_7 = ("cartpole", "acrobot", "mountaincar", "lunarlander")
 LEVELS = (1, 2, 3, 4, 5)
 METHODS_7 = (("BC", "bc"), ("GAIL", "gail"), ("ILPO", "ilpo"), ("IUPE", "iupe"))
+LABELS_7 = tuple(label for label, _ in METHODS_7)  # the tables' rows; Fig 7.1 colours a method by its place here
 SUPERSCRIPT = {1: "¹", 2: "²", 3: "³", 4: "⁴", 5: "⁵"}
 RESULTS_TABLES = {level: f"7.{level + 1}" for level in LEVELS}  # Expert^K's table: 7.2 .. 7.6
 # Every method gets all the shipped demonstrations of its level unless told otherwise (the thesis: 1,000
@@ -305,7 +306,7 @@ def budgets(results: list[dict]) -> list[tuple]:
 def budget_label(results: list[dict], budget: tuple) -> str:
     """'40 iterations, 100 demonstrations: GAIL', for the page's choice of shipped results."""
     iterations, episodes = budget
-    methods = [label for label, _ in METHODS_7 if any(r["method"] == label and _budget(r) == budget for r in results)]
+    methods = [label for label in LABELS_7 if any(r["method"] == label and _budget(r) == budget for r in results)]
     return (f"{iterations or 'default'} iterations, {episodes or 'all'} demonstrations: "
             + ", ".join(methods))
 
@@ -393,7 +394,7 @@ def write_figures(results: list[dict], envs, out_dir, log=print) -> list:
         for metric in ("aer", "fidelity"):
             fig = figures.resilience_curves(results, env, "slide", metric=metric,
                                             thesis=thesis_curves(env) if metric == "aer" else None,
-                                            colors_by=[label for label, _ in METHODS_7])
+                                            colors_by=LABELS_7)
             stem = out_dir / f"fig-7-1-{env}" if metric == "aer" else out_dir / f"fig-7-1-{env}-fidelity"
             try:
                 stem.with_suffix(".svg").write_bytes(figure_bytes(fig, "svg"))
