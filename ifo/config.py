@@ -45,12 +45,12 @@ class RunConfig:
     iterations: int | None = option(None, "α: how many presses of Step make a full run", low=1, high=10_000,
                                     title="Iterations in the run")
     expert_episodes: int | None = option(None, "how many demonstration episodes T_e holds", low=1, high=100_000,
-                                         advanced=True)
+                                         advanced=True, work=1)
     expert_level: int = option(1, "which expert demonstrated (thesis Table 7.1): 1 the best .. 5 the worst; "
                                   "Performance is then measured against that expert's AER (control tasks only)",
                                low=1, high=5, advanced=True, title="Expert level")
     eval_episodes: int = option(100, "evaluation episodes per iteration (held-out seeds or maze layouts)", low=1,
-                                high=10_000, advanced=True)
+                                high=10_000, advanced=True, work=1)
     eval_explore: bool = option(False, "measure AER with actions sampled from the policy's softmax instead of "
                                        "the MAP action (the thesis measured IUPE so)", title="Measure AER with",
                                 widget="radio",
@@ -59,9 +59,9 @@ class RunConfig:
                                advanced=True)
     obs_mode: str = option("image", "maze observations: images, or a vector of the agent's cell and the walls",
                            choices=("image", "vector"), advanced=True)
-    image_size: int = option(32, "maze image side in pixels", low=16, high=256, advanced=True)
+    image_size: int = option(32, "maze image side in pixels", low=16, high=256, advanced=True, work=2)
     rollout_max_steps: int | None = option(None, "maze: step limit of the learner's own runs (I_pre, I_pos)",
-                                           low=1, high=100_000, advanced=True)
+                                           low=1, high=100_000, advanced=True, work=1)
     deadlock_guard: bool = option(True, "maze evaluation ends an episode on the 4th visit to a cell with "
                                         "return -1 (the thesis's evaluation); off, a lost agent wanders to the "
                                         "1,000-step limit", title="Deadlock guard")

@@ -7,8 +7,10 @@ generated from it.
 `option()` is `dataclasses.field` with metadata: help (one plain sentence), title (the widget's
 label), choices, low/high bounds, `labels` (what a widget shows for each choice), `advanced`
 (in the app's "More settings" rather than the sidebar's first lines) and `widget` ("radio" to
-show a few choices side by side). `check_field` applies the bounds with a message
-that names the field as the command line spells it.
+show a few choices side by side), and `work` (how an iteration's work grows with the setting: 1 in
+proportion, 2 with its square, as an image's side; 0 not, or not simply). `check_field` applies the
+bounds with a message that names the field as the command line spells it; `heavier_than_default`
+names the settings that multiply an iteration's work.
 """
 from __future__ import annotations
 
@@ -25,9 +27,9 @@ _MISSING = dataclasses.MISSING
 
 def option(default: Any = None, help: str = "", *, title: str = "", choices: tuple | None = None,
            low: float | None = None, high: float | None = None, labels: dict | None = None, advanced: bool = False,
-           widget: str = "", default_factory: Any = _MISSING) -> Any:
+           widget: str = "", work: int = 0, default_factory: Any = _MISSING) -> Any:
     meta = {"help": help, "title": title, "choices": choices, "low": low, "high": high, "labels": labels or {},
-            "advanced": advanced, "widget": widget}
+            "advanced": advanced, "widget": widget, "work": work}
     if default_factory is not _MISSING:
         return dataclasses.field(default_factory=default_factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -49,6 +51,7 @@ class Spec:
     advanced: bool
     title: str
     widget: str
+    work: int = 0  # an iteration's work grows as setting ** work (0: not, or not simply)
 
     @property
     def flag(self) -> str:
@@ -83,7 +86,7 @@ def specs(cls) -> tuple[Spec, ...]:
                                                                else None)
         m = f.metadata
         out.append(Spec(f.name, kind, optional or default is None, default, m["help"], m["choices"], m["low"],
-                        m["high"], m["labels"], m["advanced"], m["title"], m["widget"]))
+                        m["high"], m["labels"], m["advanced"], m["title"], m["widget"], m["work"]))
     return tuple(out)
 
 
@@ -112,6 +115,21 @@ def check_field(spec: Spec, value: Any) -> None:
     if spec.kind is tuple:
         if not value or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value):
             raise ValueError(f"{spec.name} must list positive whole numbers, got {value!r}")
+
+
+def heavier_than_default(field_specs, values: dict, defaults: dict, at_least: float = 4.0) -> list[tuple]:
+    """(spec, value, default, factor) for each chosen setting that multiplies the work of the part of an
+    iteration it sizes by `at_least` or more against its default (e.g. a 256-pixel maze image: 64x the
+    networks' work per image), so a page can say so before a Step takes minutes."""
+    out = []
+    for s in field_specs:
+        value, default = values.get(s.name), defaults.get(s.name)
+        if not s.work or value is None or not default or default <= 0:
+            continue
+        factor = (value / default) ** s.work
+        if factor >= at_least:
+            out.append((s, value, default, factor))
+    return out
 
 
 def parse_bool(text: str) -> bool:

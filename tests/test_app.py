@@ -415,6 +415,23 @@ def test_maze_runs_can_be_judged_as_the_thesis_did():
     assert slot(at).run.config.maze_eval_layouts == "held-out"
 
 
+def test_a_setting_that_multiplies_the_work_warns_before_the_step():
+    """A 256-pixel maze image is 64x the networks' work per image (and made a 5x5 maze's run in 250 s
+    before its first Step): the sidebar says so as the setting changes, and says nothing at the defaults,
+    nor for a setting that only lightens the work. 64 pixels (x4) keeps this test short."""
+    at = open_step_page(**{"step.env": "Maze 5x5"})
+    assert not at.sidebar.warning
+    at.number_input(key="step.image_size").set_value(16).run()  # smaller: lighter, no warning
+    assert not at.exception and not at.sidebar.warning
+    at.number_input(key="step.image_size").set_value(64).run()
+    at.number_input(key="step.eval_episodes").set_value(1000).run()
+    assert not at.exception
+    [warning] = [w.value for w in at.sidebar.warning]
+    assert "Image size 64 against the default 32 (up to ×4 the work" in warning
+    assert "against the default 100 (up to ×10 the work" in warning
+    assert "each Step may take minutes" in warning
+
+
 # --------------------------------------------------------------------------- journeys that broke a class
 @pytest.mark.parametrize("method", ["bco-alpha", "abco", "iupe"])
 def test_every_maze_method_steps_without_an_error(method):

@@ -69,8 +69,8 @@ class AdversarialConfig(LearnerConfig):
                                 labels=REWARD_LABELS, advanced=True)
     round_steps: int | None = option(None, "environment steps PPO collects and learns from in one round (one "
                                            "Step); rounded up to whole PPO rollouts", low=1, high=10_000_000,
-                                     advanced=True)
-    disc_updates: int | None = option(None, "discriminator updates per round", low=0, high=100_000, advanced=True)
+                                     advanced=True, work=1)
+    disc_updates: int | None = option(None, "discriminator updates per round", low=0, high=100_000, advanced=True, work=1)
     disc_batch_size: int | None = option(256, "expert samples (and as many agent samples) per discriminator update",
                                          low=2, high=65_536, advanced=True)
     disc_lr: float | None = option(3e-4, "Adam's learning rate for the discriminator", low=1e-7, high=10.0,
@@ -81,7 +81,7 @@ class AdversarialConfig(LearnerConfig):
                                    high=100_000, advanced=True)
     ppo_batch_size: int | None = option(None, "PPO's mini-batch size", low=2, high=1_000_000, advanced=True)
     policy_epochs: int | None = option(None, "PPO's n_epochs: passes over each rollout", low=1, high=1000,
-                                       advanced=True)
+                                       advanced=True, work=1)
     lr: float | None = option(None, "PPO's (constant) learning rate", low=1e-7, high=10.0, advanced=True)
     gamma: float | None = option(None, "PPO's discount", low=0.0, high=1.0, advanced=True)
     gae_lambda: float | None = option(None, "PPO's GAE λ", low=0.0, high=1.0, advanced=True)

@@ -74,15 +74,15 @@ class BCOConfig(LearnerConfig):
     single_pass: bool | None = option(None, "one pass and stop, as BCO does: no runs of the policy, I_s = I_pre",
                                       advanced=True)
     pre_size: int | None = option(None, "|I_pre|: random-policy transitions before the 70/30 split", low=10,
-                                  high=2_000_000, advanced=True, title="|I_pre|")
+                                  high=2_000_000, advanced=True, work=1, title="|I_pre|")
     pre_per_action_cap: int | None = option(5_000, "at most this many random transitions per action in I_pre",
                                             low=1, advanced=True)
     episodes_per_iteration: int | None = option(None, "|E|: runs of the policy per iteration, which make I_pos",
-                                                low=1, high=10_000, advanced=True, title="|E|")
+                                                low=1, high=10_000, advanced=True, work=1, title="|E|")
     idm_epochs: int | None = option(None, "passes of the IDM over I_s per iteration", low=1, high=1000,
-                                    advanced=True)
+                                    advanced=True, work=1)
     policy_epochs: int | None = option(None, "passes of the policy over T_e per iteration", low=1, high=1000,
-                                       advanced=True)
+                                       advanced=True, work=1)
     batch_size: int | None = option(128, "mini-batch size of both models", low=2, high=65_536, advanced=True)
     lr: float | None = option(None, "Adam's learning rate for both models", low=1e-7, high=10.0, advanced=True)
     hidden: tuple[int, ...] | None = option((32, 32), "hidden layer widths of the vector networks",

@@ -60,7 +60,7 @@ class CRILConfig(BCOConfig):
     replay_multiple: int | None = option(10, "the replay memory holds this many times the expert's average "
                                              "episode length (Sec 8.2)", low=1, high=1000, advanced=True)
     td_updates: int | None = option(None, "TD mini-batch updates after each run of the policy", low=0,
-                                    high=10_000, advanced=True)
+                                    high=10_000, advanced=True, work=1)
     td_rounds: int | None = option(5, "the |E| runs go in this many batches, each followed by its TD updates",
                                    low=1, high=10_000, advanced=True)
     rl_clip: float | None = option(0.5, "gradient clipping of the TD updates, ±value (Sec 8.3)", low=1e-6,

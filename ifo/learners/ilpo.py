@@ -55,17 +55,17 @@ class ILPOConfig(LearnerConfig):
                                               "as real actions)", low=2, high=64, title="Latent actions |Z|",
                                         advanced=True)
     policy_epochs: int | None = option(None, "passes of the latent forward model and the latent policy over T_e "
-                                             "per iteration", low=1, high=10_000, advanced=True)
+                                             "per iteration", low=1, high=10_000, advanced=True, work=1)
     min_updates: int | None = option(200, "at least this many mini-batch updates of the latent model per "
                                           "iteration (one demonstration is only a few mini-batches)", low=0,
-                                     high=100_000, advanced=True)
+                                     high=100_000, advanced=True, work=1)
     pre_size: int | None = option(None, "|I_pre|: random-policy transitions the remapping starts from (30% kept "
-                                        "to measure it)", low=10, high=2_000_000, advanced=True, title="|I_pre|")
+                                        "to measure it)", low=10, high=2_000_000, advanced=True, work=1, title="|I_pre|")
     episodes_per_iteration: int | None = option(None, "|E|: runs of the policy per iteration whose (s, a, s') "
-                                                      "refine the remapping", low=0, high=10_000, advanced=True,
+                                                      "refine the remapping", low=0, high=10_000, advanced=True, work=1,
                                                 title="|E|")
     remap_epochs: int | None = option(None, "passes of the remapping π_ξ(a | z, s) over its data per iteration",
-                                      low=1, high=1000, advanced=True)
+                                      low=1, high=1000, advanced=True, work=1)
     batch_size: int | None = option(128, "mini-batch size of every model", low=2, high=65_536, advanced=True)
     lr: float | None = option(1e-3, "Adam's learning rate for every model", low=1e-7, high=10.0, advanced=True)
     hidden: tuple[int, ...] | None = option((64, 64), "hidden layer widths of the networks", advanced=True)

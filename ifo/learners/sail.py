@@ -64,11 +64,11 @@ class SAILConfig(BCOConfig):
               "0 turns the adversarial term off", low=0.0, high=100.0, title="Adversarial weight λ")
     adversarial_steps: int | None = option(None, "behavioural-cloning mini-batches per iteration that also carry "
                                                  "the adversarial term (spread evenly)", low=0, high=100_000,
-                                           advanced=True)
+                                           advanced=True, work=1)
     generator_weight: float | None = option(1.0, "weight of G's error (Eq 9.2) in the joint loss", low=0.0,
                                             high=100.0, advanced=True)
     discriminator_updates: int | None = option(None, "Adam steps of D per iteration", low=0, high=100_000,
-                                               advanced=True)
+                                               advanced=True, work=1)
     discriminator_batch: int | None = option(16, "windows of the teacher's and of the policy's trajectories per "
                                                  "step of D (each)", low=1, high=4096, advanced=True)
     window: int | None = option(32, "length of the windows of states D reads (longer trajectories are cut)",

@@ -27,7 +27,7 @@ import streamlit as st
 from ifo.config import MAZE_EVALUATION_FIELDS, RunConfig, switches
 from ifo.envs import ENVS, get_env
 from ifo.methods import METHODS, get_method
-from ifo.options import Spec, check_field, specs
+from ifo.options import Spec, check_field, heavier_than_default, specs
 from ifo.reproduce import TABLES
 
 FAST_OVERRIDES = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2, round_steps=512)
@@ -332,6 +332,12 @@ def _more_settings(key: str, env: str, method: str, defaults: dict, b: dict) -> 
             value = _widget(s, _k(key, s.name), defaults.get(s.name), b, optional=True)
             if value is not None:
                 values[s.name] = int(value) if s.kind is int else value
+    heavy = heavier_than_default(chosen, values, defaults)
+    if heavy:  # outside the expander: a collapsed one would hide it
+        st.warning("Slower Steps ahead: " + "; ".join(
+            f"{s.label} {value:g} against the default {default:g} (up to ×{factor:,.0f} the work of what it sizes)"
+            for s, value, default, factor in heavy) + ". Making the run and each Step may take minutes; the page "
+            "times each iteration after the first Step.")
     return values
 
 
