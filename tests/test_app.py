@@ -416,9 +416,9 @@ def test_maze_runs_can_be_judged_as_the_thesis_did():
 
 
 def test_a_setting_that_multiplies_the_work_warns_before_the_step():
-    """A 256-pixel maze image is 64x the networks' work per image (and made a 5x5 maze's run in 250 s
-    before its first Step): the sidebar says so as the setting changes, and says nothing at the defaults,
-    nor for a setting that only lightens the work. 64 pixels (x4) keeps this test short."""
+    """A 256-pixel maze image is 64x the networks' work per image, and building the run renders every
+    frame at that size before the first Step: the sidebar says so as the setting changes, and says nothing
+    at the defaults, nor for a setting that only lightens the work. 64 pixels (x4) keeps this test short."""
     at = open_step_page(**{"step.env": "Maze 5x5"})
     assert not at.sidebar.warning
     at.number_input(key="step.image_size").set_value(16).run()  # smaller: lighter, no warning

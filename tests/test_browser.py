@@ -181,6 +181,33 @@ def test_a_link_naming_the_maze_and_method_as_the_cli_does_opens_them(app, page)
     expect(page.locator(CHART).filter(has_text="Where the policy looks (Grad-CAM)")).to_be_visible()
 
 
+def test_a_setting_that_multiplies_the_work_warns_in_the_sidebar(app, page, snap):
+    """By the sidebar to the Step page on CartPole, 1,000 evaluation episodes typed into "More settings":
+    the sidebar warns (10x the evaluation) before anyone presses Step, and the expander closed keeps it."""
+    open_app(page, app)
+    go_by_sidebar(page, "Step through a run")
+    sidebar(page).get_by_text("More settings").click()
+    type_number(page, "Eval episodes", 1000, where=sidebar(page))
+    warning = sidebar(page).get_by_text("Slower Steps ahead")
+    expect(warning).to_contain_text("against the default 100 (up to ×10 the work")
+    sidebar(page).get_by_text("More settings").click()  # closed: the warning is outside it
+    expect(warning).to_be_visible()
+    expect(error_boxes(page)).to_have_count(0)
+    snap(page, "cartpole")
+
+
+def test_a_link_to_a_maze_with_larger_images_warns_in_the_sidebar(app, page, snap):
+    """`/step?step.env=maze3&step.image_size=64` opens the 3x3 maze with 64-pixel images and says, before
+    the first Step, that each image is about 4x the networks' work; a Step still trains."""
+    open_app(page, app, "step", **{"step.env": "maze3", "step.method": "iupe", "step.image_size": "64"})
+    expect(page.get_by_text("Current run: IUPE on Maze 3x3, seed 0")).to_be_visible()
+    expect(sidebar(page).get_by_text("Slower Steps ahead")).to_contain_text(
+        "Image size 64 against the default 32 (up to ×4 the work")
+    step(page, 1, 15)
+    expect(error_boxes(page)).to_have_count(0)
+    snap(page, "maze")
+
+
 def test_a_link_opens_the_resilience_study_on_the_environment_it_names(app, page):
     """`/resilience?resilience.env=acrobot` opens the study on Acrobot (it used to open CartPole); choosing
     another environment writes it into the address bar, so a reload keeps it."""

@@ -70,7 +70,8 @@ class AdversarialConfig(LearnerConfig):
     round_steps: int | None = option(None, "environment steps PPO collects and learns from in one round (one "
                                            "Step); rounded up to whole PPO rollouts", low=1, high=10_000_000,
                                      advanced=True, work=1)
-    disc_updates: int | None = option(None, "discriminator updates per round", low=0, high=100_000, advanced=True, work=1)
+    disc_updates: int | None = option(None, "discriminator updates per round", low=0, high=100_000, advanced=True,
+                                      work=1)
     disc_batch_size: int | None = option(256, "expert samples (and as many agent samples) per discriminator update",
                                          low=2, high=65_536, advanced=True)
     disc_lr: float | None = option(3e-4, "Adam's learning rate for the discriminator", low=1e-7, high=10.0,

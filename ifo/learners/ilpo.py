@@ -60,7 +60,8 @@ class ILPOConfig(LearnerConfig):
                                           "iteration (one demonstration is only a few mini-batches)", low=0,
                                      high=100_000, advanced=True, work=1)
     pre_size: int | None = option(None, "|I_pre|: random-policy transitions the remapping starts from (30% kept "
-                                        "to measure it)", low=10, high=2_000_000, advanced=True, work=1, title="|I_pre|")
+                                        "to measure it)", low=10, high=2_000_000, advanced=True, work=1,
+                                  title="|I_pre|")
     episodes_per_iteration: int | None = option(None, "|E|: runs of the policy per iteration whose (s, a, s') "
                                                       "refine the remapping", low=0, high=10_000, advanced=True, work=1,
                                                 title="|E|")
