@@ -146,6 +146,7 @@ def test_cancel_a_queued_and_a_running_job(make_queue):
     running = submit(q, "user01", "long", iterations=5)
     waiting = submit(q, "user01", "waiting")
     assert wait_for(lambda: q.job("user01", running).state == "running")
+    assert wait_for(lambda: rec.running == 1)  # inside its first Step (a cancel before it stops at 0)
     assert q.cancel("user01", waiting)
     assert q.cancel("user01", running)
     rec.release.set()
