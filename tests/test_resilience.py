@@ -195,11 +195,28 @@ def test_a_second_sweep_ships_beside_the_first_and_each_budget_reads_alone(tmp_p
              for r in _longer_budget_rows()]
     assert ch7.ship_results(again, tmp_path) == {"cartpole": 15}  # the same training is replaced, not added
     results = ch7.results_from_rows(json.loads(line) for line in (tmp_path / "cartpole.jsonl").read_text().splitlines())
-    assert ch7.budgets(results) == [(5, 20), (40, 100)]
-    assert ch7.budget_label(results, (40, 100)) == "40 iterations, 100 demonstrations: GAIL"
-    short, longer = ch7.in_budget(results, (5, 20)), ch7.in_budget(results, (40, 100))
+    assert ch7.budgets(results) == [(5, 20), (40, None)]  # CartPole's Expert¹ ships 100 episodes: all of them
+    assert ch7.budget_label(results, (40, None)) == "40 iterations, all demonstrations: GAIL"
+    short, longer = ch7.in_budget(results, (5, 20)), ch7.in_budget(results, (40, None))
     assert {r["method"] for r in short} == {"Random", "Expert¹", "Expert⁴", "BC", "IUPE"} and len(short) == 12
     assert sorted((r["method"], r["aer"]) for r in longer) == [("GAIL", 491.0), ("GAIL", 499.0), ("Random", 20.0)]
+
+
+def test_all_of_each_levels_demonstrations_is_one_budget_though_levels_ship_different_numbers():
+    """LunarLander's Expert¹ ships 100 episodes, its Experts 2-5 ship 50: trainings on all of each level's
+    episodes are one budget on the page (one curve across the levels), not one budget per level; 20 of them
+    is another."""
+    def row(level, episodes, seed=0):
+        return {"key": f"IUPE{level}{seed}{episodes}", "status": "done",
+                "spec": {"table": f"7.{level + 1}", "env": "lunarlander", "row": "IUPE", "seed": seed, "iterations": 40,
+                         "settings": {"expert_level": level}},
+                "result": {"aer": 100.0, "performance": 0.9, "expert_aer": 120.0, "level": level,
+                           "expert_episodes": episodes}}
+
+    results = ch7.results_from_rows([row(1, 100), row(2, 50), row(3, 50), row(2, 20)])
+    assert ch7.budgets(results) == [(40, None), (40, 20)]
+    assert ch7.budget_label(results, (40, None)) == "40 iterations, all demonstrations: IUPE"
+    assert sorted(r["level"] for r in ch7.in_budget(results, (40, None))) == [1, 2, 3]
 
 
 def test_two_shippers_at_once_keep_each_others_cells(tmp_path, monkeypatch):
@@ -316,9 +333,9 @@ def test_the_page_offers_each_shipped_budget_and_draws_one_at_a_time(app_env, mo
     monkeypatch.setattr(ch7, "shipped_results_path", lambda env: path if env == "cartpole" else app_env / "none.jsonl")
     at = open_page("resiltest03")
     budget = at.radio(key="resilience.budget.cartpole")
-    assert budget.options == ["5 iterations, all demonstrations: BC, IUPE", "40 iterations, 100 demonstrations: GAIL"]
+    assert budget.options == ["5 iterations, all demonstrations: BC, IUPE", "40 iterations, all demonstrations: GAIL"]
     assert chart_names(at, "resilience.aer") == ["expert", "BC", "IUPE"]  # the budget with every method first
-    budget.set_value((40, 100)).run()
+    budget.set_value((40, None)).run()
     assert chart_names(at, "resilience.aer") == ["expert", "GAIL"]
     assert set(frame(at, "P (ours)")["method"]) == {"GAIL"}
     at.multiselect(key="resilience.methods").set_value(["BC"]).run()

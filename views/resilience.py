@@ -42,8 +42,9 @@ budgets = ch7.budgets(every_budget)
 if len(budgets) > 1:  # e.g. every method with 5 rounds, and GAIL again with 40
     budget = st.radio("Training budget", budgets, format_func=lambda b: ch7.budget_label(every_budget, b),
                       key=f"resilience.budget.{env}", **URL,
-                      help="Iterations and demonstrations per training. Adversarial learners (GAIL) need many "
-                           "more rounds than the others: a short budget says more about that than about the expert.")
+                      help="Iterations and demonstration episodes per training ('all': every episode the level "
+                           "ships, see the expert levels below). Adversarial learners (GAIL) need many more rounds "
+                           "than the others: a short budget says more about that than about the expert.")
     shipped = ch7.in_budget(every_budget, budget)
 results = [r for r in shipped if r["method"] in methods or r["reference"]]
 if not budgets:

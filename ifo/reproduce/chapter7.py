@@ -20,6 +20,7 @@ episodes (it is far larger than the spread of their P over runs), so ours is too
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -290,8 +291,21 @@ def results_from_rows(rows) -> list[dict]:
 
 # A budget is what a training was given: (iterations, demonstrations). The shipped results hold every
 # method with the short budget, and may hold more cells with a longer one (GAIL on CartPole, 40 rounds).
+# "All the level's demonstrations" is one budget (None) whatever their number: LunarLander's levels 2-5 ship 50.
 def _budget(result: dict) -> tuple:
-    return result["iterations"], result["expert_episodes"]
+    episodes = result["expert_episodes"]
+    if episodes is not None and result.get("env") and episodes == _shipped_episodes_once(result["env"],
+                                                                                        result["level"]):
+        episodes = None
+    return result["iterations"], episodes
+
+
+@functools.lru_cache(maxsize=None)
+def _shipped_episodes_once(env: str, level: int) -> int | None:
+    try:
+        return shipped_episodes(env, level)
+    except (FileNotFoundError, KeyError, ValueError):  # no such level shipped: its count is what it says
+        return None
 
 
 def budgets(results: list[dict]) -> list[tuple]:
@@ -304,7 +318,7 @@ def budgets(results: list[dict]) -> list[tuple]:
 
 
 def budget_label(results: list[dict], budget: tuple) -> str:
-    """'40 iterations, 100 demonstrations: GAIL', for the page's choice of shipped results."""
+    """'40 iterations, all demonstrations: GAIL', for the page's choice of shipped results."""
     iterations, episodes = budget
     methods = [label for label in LABELS_7 if any(r["method"] == label and _budget(r) == budget for r in results)]
     return (f"{iterations or 'default'} iterations, {episodes or 'all'} demonstrations: "
