@@ -255,6 +255,13 @@ class ImageEncoder(nn.Module):
         return self.stage3.conv2
 
 
+def uses_dropout(module: nn.Module) -> bool:
+    """Whether training `module` draws random masks from torch's global generator (nn.Dropout, or an
+    RNN's dropout between its layers)."""
+    return any((isinstance(m, nn.modules.dropout._DropoutNd) and m.p > 0) or (isinstance(m, nn.RNNBase) and m.dropout > 0)
+               for m in module.modules())
+
+
 def _head(in_dim: int, n_actions: int, hidden: int = 128) -> nn.Module:
     return nn.Sequential(nn.Linear(in_dim, hidden), nn.LeakyReLU(), nn.Dropout(0.5), nn.Linear(hidden, n_actions))
 

@@ -32,20 +32,33 @@ WORKER_RUNS = 4  # Runs a worker keeps between tasks (one per configuration it s
 _worker_runs: "OrderedDict[str, object]" = OrderedDict()
 
 
-def train_iteration(config: dict, iteration: int, arrays: dict, meta: dict) -> Entry:
-    """On a worker: iteration `iteration + 1` of a run of `config` whose learner state is (arrays, meta)."""
+_worker_runs_lock = threading.Lock()
+
+
+def kept_run(config: dict):
+    """A `Run` of `config` (everything but its iterations) built once and kept among the last WORKER_RUNS:
+    a worker's, or the app's computing ahead (ifo.ahead). The caller trains it with `Run.train_from`,
+    which needs nothing of the run's own past; one caller at a time per process."""
     import json
 
     from ifo.config import RunConfig
     from ifo.run import Run
 
     key = json.dumps({**config, "iterations": None}, sort_keys=True, default=str)
-    run = _worker_runs.pop(key, None)
+    with _worker_runs_lock:
+        run = _worker_runs.pop(key, None)
     if run is None:
         run = Run(RunConfig.from_dict(config))
-    _worker_runs[key] = run
-    while len(_worker_runs) > WORKER_RUNS:
-        _worker_runs.popitem(last=False)
+    with _worker_runs_lock:
+        _worker_runs[key] = run
+        while len(_worker_runs) > WORKER_RUNS:
+            _worker_runs.popitem(last=False)
+    return run
+
+
+def train_iteration(config: dict, iteration: int, arrays: dict, meta: dict) -> Entry:
+    """On a worker: iteration `iteration + 1` of a run of `config` whose learner state is (arrays, meta)."""
+    run = kept_run(config)
     return run.train_from(iteration, {k: np.array(v) for k, v in arrays.items()}, meta)  # Ray's are read-only
 
 

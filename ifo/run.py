@@ -12,7 +12,7 @@ if it fails or is cancelled, the learner is put back exactly as it was before th
 from __future__ import annotations
 
 import threading
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
@@ -33,7 +33,7 @@ from ifo.methods import get_method
 from ifo.metrics import aer, performance, trajectory_fidelity
 from ifo.probes import policy_map_record
 from ifo.runtime import limit_threads
-from ifo.seeds import Seeds, evaluation_seeds
+from ifo.seeds import GLOBAL_RNG, Seeds, evaluation_seeds
 
 Progress = Callable[[str, int], None]  # (phase name, iteration) -> None
 DEMONSTRATION_LAYOUTS = 100  # the shipped maze demonstrations come from the training pool's first 100 layouts
@@ -56,7 +56,6 @@ class Run:
         self.progress = progress
         self._cancel = threading.Event()
         seeds = Seeds(cfg.seed)
-        torch.manual_seed(seeds.torch_seed("init"))  # the networks' initial weights
         self.pool, self.eval_pool = self._pools()
 
         # T_e: expert state pairs. The true actions stay in HiddenTruth (diagnostics) unless the
@@ -77,7 +76,9 @@ class Run:
                            HiddenTruth(self.demos.hidden_actions, spec.n_actions), seeds,
                            expert_actions=self.demos.hidden_actions if self.method.sees_expert_actions else None,
                            expert_returns=self.demos.episode_returns, on_phase=self._on_phase)
-        self.learner = self.method.learner_class(self.ctx, cfg.learner)
+        with GLOBAL_RNG:  # another session's training must not draw from the generator in between
+            torch.manual_seed(seeds.torch_seed("init"))  # the networks' initial weights
+            self.learner = self.method.learner_class(self.ctx, cfg.learner)
         self.records: list[dict] = []
         self.last_evaluation: Rollouts | None = None
         self.parent: str | None = None  # the checkpoint this run was loaded from or last saved as
@@ -275,7 +276,8 @@ class Run:
         before = self.learner.state(), dict(self.learner.__dict__), self.last_evaluation
         self.ctx.seconds = seconds = {}
         try:
-            sections = self.learner.step(i, rng)
+            with GLOBAL_RNG if self.learner.draws_global_rng else nullcontext():
+                sections = self.learner.step(i, rng)
             with self.ctx.phase(EVALUATE):
                 evaluation = self.evaluate(self.config.eval_explore, rng)
                 if self.spec.policy_map_axes:  # Figs 8.2, 8.3: the policy over the state space, for every method

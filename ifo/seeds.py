@@ -17,6 +17,8 @@ does not depend on what earlier iterations drew.
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import torch
 
@@ -24,6 +26,13 @@ EVAL_SEED_BASE = 1_000_000_000  # vector tasks: evaluation episodes use seeds 10
 STREAMS = {"init": 1, "pre": 2, "iteration": 3, "evaluation": 4, "video": 5, "learner": 6}
 EPISODE_STREAMS = {"pre": 1, "rollouts": 2, "learner": 3}  # environment seeds of the learner's own episodes
 EPISODE_RANGE = 2**48
+
+# Torch's default generator and numpy's global one are one per process, not per thread. Dropout and
+# PPO's sampling draw from them, so a learner that uses them seeds them (from its iteration's stream)
+# and holds this lock while it trains: two trainings in threads of one process (the app's sessions,
+# IFO_LAB_MAX_TRAININGS of them at once) would otherwise interleave their draws, and the same seed
+# would give other numbers, shared with the whole class through the iteration cache.
+GLOBAL_RNG = threading.RLock()
 
 
 class Seeds:

@@ -144,3 +144,12 @@ def test_every_method_on_mountaincar_records_its_policy_map():
                                        expert_episodes=1)))
     rec = run.step()["policy_map"]
     assert rec["x_name"] == "position" and rec["y_name"] == "velocity" and rec["kl"] is not None
+
+
+def test_cril_learns_from_the_mazes_images():
+    """The replay memory keeps the observations' own type: the maze's images stay pixels (uint8), which
+    the CNN reads as such (stored as floats, they reached it unpermuted and the first TD update failed)."""
+    run = cril(env="maze3", expert_episodes=10)
+    record = run.step()
+    assert run.learner.replay.states.dtype == np.uint8
+    assert record["td"]["updates"] > 0 and np.isfinite(record["td"]["loss"])

@@ -414,3 +414,34 @@ def test_a_kept_i_pre_is_not_held_up_by_another_sessions_collection():
     finally:
         release.set()
         slow.join(30)
+
+
+def test_trainings_in_threads_of_one_process_give_the_numbers_they_give_alone(tiny_config):
+    """The app trains several sessions' iterations at once in threads of one process. Dropout (the maze's
+    image heads) and PPO (GAIfO) draw from torch's and numpy's process-wide generators: without the lock
+    the threads interleaved their draws and the same seed gave other numbers (shared with a class through
+    the iteration cache). CartPole's IUPE draws from neither and still runs beside them."""
+    import threading
+
+    configs = [tiny_config(env="maze3", method="iupe", expert_episodes=10, iterations=2),
+               tiny_config(method="gaifo", iterations=2),
+               tiny_config(env="maze3", method="bco-alpha", expert_episodes=10, iterations=2, seed=1),
+               tiny_config(method="iupe", iterations=3)]
+    alone = [strip_timing(Run(c).run()) for c in configs]
+    runs = [Run(c) for c in configs]
+    errors = []
+
+    def train(run):
+        try:
+            run.run()
+        except Exception as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=train, args=(run,)) for run in runs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    assert [strip_timing(run.records) for run in runs] == alone
+    assert [run.learner.draws_global_rng for run in runs] == [True, True, True, False]

@@ -11,9 +11,10 @@ import numpy as np
 
 
 class ReplayMemory:
-    def __init__(self, capacity: int, obs_shape: tuple[int, ...]):
+    def __init__(self, capacity: int, obs_shape: tuple[int, ...], obs_dtype=np.float32):
+        """`obs_dtype`: the observations' own (the maze's images are uint8, which the CNN reads as pixels)."""
         self.capacity = int(capacity)
-        self.states = np.zeros((self.capacity, *obs_shape), dtype=np.float32)
+        self.states = np.zeros((self.capacity, *obs_shape), dtype=obs_dtype)
         self.next_states = np.zeros_like(self.states)
         self.actions = np.zeros(self.capacity, dtype=np.int64)
         self.rewards = np.zeros(self.capacity, dtype=np.float32)

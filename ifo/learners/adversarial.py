@@ -210,7 +210,7 @@ class AdversarialLearner(Learner):
     # ------------------------------------------------------------------ one round
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
         ctx, cfg = self.ctx, self.config
-        torch.manual_seed(int(rng.integers(2**31)))  # PPO samples its actions with torch's global generator
+        self.seed_global_rng(rng)  # PPO samples its actions with torch's global generator
         collect_seed, learn_seed = (int(s) for s in ctx.seeds.episodes("learner", 2, iteration))  # environments
         with numpy_global_seed(int(rng.integers(2**31))):
             if self.agent_states is None:

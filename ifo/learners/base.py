@@ -228,6 +228,21 @@ class Learner:
         """The network that acts (Grad-CAM and probes look at it)."""
         return self.modules["policy"]
 
+    @property
+    def draws_global_rng(self) -> bool:
+        """Whether a step draws from torch's or numpy's process-wide generators (then it seeds them and
+        the run holds ifo.seeds.GLOBAL_RNG while it trains). Families that need them only for dropout say
+        so more precisely; the default is the safe answer."""
+        return True
+
+    def seed_global_rng(self, rng: np.random.Generator) -> None:
+        """Seed torch's process-wide generator from the iteration's stream, if this learner draws from it
+        (the stream moves on either way: the same numbers whichever the answer). A learner that does not
+        must not touch it: another thread's training may be drawing from it."""
+        seed = int(rng.integers(2**31))
+        if self.draws_global_rng:
+            torch.manual_seed(seed)
+
     def active_phases(self) -> list[str]:
         """The phases one iteration goes through with these settings, in order."""
         return [p.name for p in self.phases]

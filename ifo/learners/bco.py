@@ -28,7 +28,7 @@ from ifo.data.transitions import Transitions, stratified_split
 from ifo.envs import EnvSpec
 from ifo.envs.rollout import Rollouts, run_episodes
 from ifo.learners.base import Context, Learner, LearnerConfig, Phase, histogram
-from ifo.nets import ATTENTION_KINDS, InverseDynamics, Policy, feature_attention_map, gate_report
+from ifo.nets import ATTENTION_KINDS, InverseDynamics, Policy, feature_attention_map, gate_report, uses_dropout
 from ifo.options import option
 from ifo.probes import grad_cam_probe_record
 
@@ -200,10 +200,14 @@ class BCOLearner(Learner):
     def probabilities(self, obs):
         return predict_proba(self.policy, self.policy, [obs])
 
+    @property
+    def draws_global_rng(self) -> bool:
+        return any(uses_dropout(m) for m in self.modules.values())  # the image heads' (and SAIL's D's) dropout
+
     # ------------------------------------------------------------------ one iteration
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
         gen = self.ctx.seeds.torch_generator(rng)  # mini-batch order
-        torch.manual_seed(int(rng.integers(2**31)))  # dropout in the image heads
+        self.seed_global_rng(rng)  # dropout in the image heads
         record = self.imitate(rng, gen)  # Eqs 5.1-5.2
         if self.runs_policy:
             runs = self.run_policy(iteration, rng, record)  # I_pos, v_e

@@ -103,7 +103,7 @@ class CRILLearner(BCOLearner):
         self.optimizers["td"] = torch.optim.Adam(policy.parameters(), lr=config.td_lr, foreach=True)
         lengths = np.bincount(ctx.expert.episode_index)
         capacity = int(config.replay_multiple * max(1.0, float(lengths[lengths > 0].mean())))
-        self.replay = ReplayMemory(capacity, ctx.obs_shape)
+        self.replay = ReplayMemory(capacity, ctx.obs_shape, ctx.expert.states.dtype)
         self.share_n = config.share_n or ctx.config.iterations
         self.previous_actions: np.ndarray | None = None
         self.previous_loss: float | None = None
@@ -121,7 +121,7 @@ class CRILLearner(BCOLearner):
     # ------------------------------------------------------------------ one iteration
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
         gen = self.ctx.seeds.torch_generator(rng)
-        torch.manual_seed(int(rng.integers(2**31)))
+        self.seed_global_rng(rng)  # dropout in the image heads
         record = self.imitate(rng, gen)  # lines 7-9
         epsilon = self.exploration_ratio(rng)
         runs = self.run_policy_and_learn(iteration, epsilon, rng, gen, record)  # lines 10-14

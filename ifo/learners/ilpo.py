@@ -192,7 +192,7 @@ class ILPOLearner(Learner):
     # ------------------------------------------------------------------ one iteration
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
         gen = self.ctx.seeds.torch_generator(rng)
-        torch.manual_seed(int(rng.integers(2**31)))
+        self.seed_global_rng(rng)
         record: dict = {}
         with self.ctx.phase("latent"):
             record["latent"], record["policy"] = self.train_latent(gen)

@@ -141,7 +141,7 @@ class SAILLearner(BCOLearner):
     # ------------------------------------------------------------------ one iteration
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
         gen = self.ctx.seeds.torch_generator(rng)  # mini-batch order
-        torch.manual_seed(int(rng.integers(2**31)))  # D's dropout
+        self.seed_global_rng(rng)  # D's dropout
         record, targets, _ = self.train_idm_and_label(rng, gen)  # lines 7-8 (the BCO loop's)
         self.behavioural_cloning(targets, rng, gen, record)  # line 9
         runs = self.run_policy(iteration, rng, record)  # lines 10-11
