@@ -116,6 +116,10 @@ class IterationCache:
         except (OSError, ValueError, KeyError, NpzError):
             return None
 
+    def has(self, key: str) -> bool:
+        """Whether `key` is stored (without reading it; `get` may still miss it if it is unreadable)."""
+        return (self._path(key) / "record.json").exists()
+
     def put(self, key: str, entry: Entry) -> None:
         """Store an iteration (atomically; a key already stored is left as it is), then keep within size."""
         path = self._path(key)

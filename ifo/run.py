@@ -203,7 +203,7 @@ class Run:
         self.last_step_cached = False
         if self.lineage is None:  # a user's own demonstrations: never shared, never sent away
             return self._train_step()
-        key = self._next_key()
+        key = self.next_key()
         remote = self.trainer is not None
         if self.cache is None and not remote:  # nothing to share: no entry to build
             record = self._train_step()
@@ -220,7 +220,8 @@ class Run:
         self.lineage = key
         return self.records[-1]
 
-    def _next_key(self) -> str:
+    def next_key(self) -> str:
+        """The iteration cache's key of the state after the next iteration (ifo.iteration_cache)."""
         return lineage_next(self.lineage, self._identity(), self.iteration + 1)
 
     def _trained_here(self) -> Entry:
@@ -249,7 +250,7 @@ class Run:
         """The next iteration if another session already computed it (no waiting, no training), else None."""
         if self.cache is None or self.lineage is None or self.finished:
             return None
-        key = self._next_key()
+        key = self.next_key()
         entry = self.cache.get(key)
         if entry is None:
             return None

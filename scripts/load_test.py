@@ -460,6 +460,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ray", action="store_true",
                         help="the app it serves trains on a Ray started for the test on this machine (`ray start "
                              "--head`, IFO_LAB_RAY=auto): trainings in worker processes, not in the server's own")
+    parser.add_argument("--no-ahead", action="store_true",
+                        help="the app it serves trains every Step on the click (IFO_LAB_AHEAD=0), not the next "
+                             "iteration in the background after each Step (ifo.ahead, the app's default)")
     parser.add_argument("--client", choices=["browser", "protocol"], default="browser",
                         help="browser: a headless chromium page per session; protocol: Streamlit's websocket "
                              "messages only (the server's share; the students' browsers are elsewhere)")
@@ -487,7 +490,8 @@ def main(argv: list[str] | None = None) -> int:
         else:
             server = serve_app(Path(tmp) / "server.log", {"IFO_LAB_FAST": "" if args.full else "1",
                                                            "IFO_LAB_RUNS": str(Path(tmp) / "runs"),
-                                                           "IFO_LAB_RAY": "auto" if args.ray else ""})
+                                                           "IFO_LAB_RAY": "auto" if args.ray else "",
+                                                           "IFO_LAB_AHEAD": "0" if args.no_ahead else "1"})
         with ray_head() if args.ray and not args.url else nullcontext(), server as url:  # RuntimeError: the log
             start = time.perf_counter()
             if args.screenshots:
@@ -507,6 +511,7 @@ def main(argv: list[str] | None = None) -> int:
                          args.client) + (f"\n\n{note}" if note else ""))
             print(f"\nSettings: {'real sizes' if args.full else 'IFO_LAB_FAST tiny runs'}; "
                   f"{'trainings on a local Ray; ' if args.ray else ''}"
+                  f"{'every Step trained on the click (IFO_LAB_AHEAD=0); ' if args.no_ahead and not args.url else ''}"
                   f"{'lesson ' + str(LESSON) + f', teacher {args.lead} Steps ahead' if args.mode == 'lesson' else ''}"
                   f"{'each session its own seed' if args.mode == 'free' else ''}"
                   f"{f'the teacher (session 0) Steps, {args.sessions - 1} sessions watch its shared run' if args.mode == 'watch' else ''}"

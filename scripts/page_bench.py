@@ -69,6 +69,7 @@ def main() -> int:
         parser.error("--steps must be at least 2 (the scrub goes back one iteration)")
     if not a.full:
         os.environ["IFO_LAB_FAST"] = "1"
+    os.environ["IFO_LAB_AHEAD"] = "0"  # the teacher's Steps train on the click (scripts/ahead_bench.py: the other way)
     from ifo.runtime import limit_threads
     from ifo.ui import panels
 

@@ -111,6 +111,37 @@ def test_step_step_reset():
     assert chart_keys(at) == [DIAGRAM]
 
 
+def test_the_next_iteration_is_ready_when_the_teacher_presses_step_again():
+    """After a Step the next iteration trains in the background while the class looks (ifo.ahead): the next
+    Step takes it ready-made, and its records are those training it then would give."""
+    from ifo.run import Run
+    from ifo.ui.session import compute_ahead
+
+    at = open_step_page()
+    at.button(key="step").click().run()
+    ahead = compute_ahead()
+    assert ahead is not None and ahead.wait_idle(120) and ahead.computed == 1
+    at.button(key="step").click().run()
+    assert not at.exception and not at.error and counter(at) == "Iteration 2 of 10"
+    run = slot(at).run
+    assert run.last_step_cached  # taken, not trained
+    alone = Run(run.config)
+    alone.run()
+    strip = lambda rs: [{k: v for k, v in r.items() if k != "seconds"} for r in rs]  # noqa: E731
+    assert strip(records(at)) == strip(alone.records[:2])
+
+
+def test_with_ifo_lab_ahead_0_every_step_trains_then(monkeypatch):
+    from ifo.ui.session import compute_ahead
+
+    monkeypatch.setenv("IFO_LAB_AHEAD", "0")
+    at = open_step_page()
+    at.button(key="step").click().run()
+    assert compute_ahead() is None
+    at.button(key="step").click().run()
+    assert counter(at) == "Iteration 2 of 10" and not slot(at).run.last_step_cached
+
+
 def test_run_n_trains_one_iteration_per_rerun_and_can_pause():
     at = open_step_page()
     at.number_input(key="run_n").set_value(3)

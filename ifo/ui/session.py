@@ -46,6 +46,23 @@ log = logging.getLogger(__name__)
 
 TICK_SECONDS = 0.3  # fragment rerun interval while playing
 _TRAININGS = threading.BoundedSemaphore(max(1, int(os.environ.get("IFO_LAB_MAX_TRAININGS", "2"))))
+_AHEAD_LOCK = threading.Lock()
+_AHEAD: dict = {}
+
+
+def compute_ahead():
+    """The server's one `ComputeAhead` (ifo.ahead): after a Step, the next iteration trains in the
+    background into the shared cache, within the training gate, giving way to any Step. None without
+    the cache (IFO_LAB_CACHE_MB=0) or with IFO_LAB_AHEAD=0."""
+    cache = storage.iteration_cache()
+    if cache is None or os.environ.get("IFO_LAB_AHEAD", "1").strip() == "0":
+        return None
+    with _AHEAD_LOCK:
+        if cache.root not in _AHEAD:
+            from ifo.ahead import ComputeAhead
+
+            _AHEAD[cache.root] = ComputeAhead(cache, gate=_TRAININGS)
+        return _AHEAD[cache.root]
 
 def _identity(config: RunConfig) -> dict:
     """What makes a run a different run: everything but the number of iterations."""
@@ -413,10 +430,16 @@ class RunSlot:
         if run.iteration >= min(s.target, run.config.iterations):
             s.playing = False
             return
-        if run.step_if_cached() is not None:  # the class's lesson: another session computed this iteration
+        if run.step_if_cached() is not None:  # computed ahead, or by another session following the lesson
             self.save()
             self._stop_play_at_target(run)
+            self._compute_ahead(run)
             return
+        ahead, key = compute_ahead(), run.next_key() if run.lineage is not None else None
+        if ahead is not None:
+            ahead.yield_to(key)  # training anything else ahead stops: this Step needs the machine
+            if key is not None and ahead.working_on(key):
+                bar.show(area.info, f"Iteration {run.iteration + 1} was already being computed ahead; finishing it...")
         _acquire(_TRAININGS, bar, area, "Waiting for other sessions' training to finish...")
         s.training = True
         try:
@@ -438,11 +461,18 @@ class RunSlot:
         if bar.deferred is not None:  # the click that arrived during the iteration: handle it now
             raise bar.deferred
         self._stop_play_at_target(run)
+        self._compute_ahead(run)
 
     def _stop_play_at_target(self, run: Run) -> None:
         s = self.state
         if run.iteration >= min(s.target, run.config.iterations):
             s.playing = False
+
+    def _compute_ahead(self, run: Run) -> None:
+        """At rest after a Step (not playing, no error): the next iteration trains while the class looks."""
+        ahead = compute_ahead()
+        if ahead is not None and not self.state.playing and self.state.step_error is None:
+            ahead.request(run)
 
 
 def _acquire(lock, bar: _ProgressBar, area, message: str) -> None:

@@ -1,0 +1,170 @@
+"""Computing the next iteration ahead, while the class looks at this one (issue 13).
+
+An iteration of IUPE on LunarLander or on a maze trains for seconds (docs/BENCH.md); a teacher talks
+over each iteration for longer than that. So when a Step ends, the app asks for the *next* iteration
+to be trained in the background into the shared iteration cache (ifo.iteration_cache): when the
+teacher presses Step it is already there, or half done and the Step waits only for the rest. The
+records are those the Step would have trained, number for number: an iteration is a pure function of
+the configuration, its number and the learner's state before it (what the cache and the Ray workers
+of ifo.remote rely on too).
+
+- One background thread per process, one iteration at a time. Only the newest request waits: a run
+  stepped again, or another run stepped, makes an older one that has not started moot.
+- It gives way. It trains only once it holds a slot of the app's training gate (never more trainings
+  at once than the gate allows), and a Step that must train something else cancels it at its next
+  phase (`yield_to`): the machine is a class's before it is the next iteration's.
+- It trains its own copy of the run (`ifo.remote.kept_run`, the last few kept), from the state the run
+  had when it asked; the run a session holds is never touched.
+- Nothing to do without a cache, for a run on a user's own demonstrations (never shared), for a
+  finished run, or for a run that trains on Ray (the cluster trains its Steps).
+"""
+from __future__ import annotations
+
+import atexit
+import logging
+import threading
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from filelock import Timeout
+
+from ifo.iteration_cache import IterationCache
+from ifo.learners.base import StepCancelled
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Request:
+    key: str  # the cache key of the iteration to train: the run's next lineage
+    config: dict
+    iteration: int  # iterations done: the request trains iteration + 1
+    arrays: dict[str, np.ndarray]  # the learner's state after them
+    meta: dict
+
+
+class ComputeAhead:
+    def __init__(self, cache: IterationCache, gate: threading.Semaphore | None = None,
+                 poll_seconds: float = 0.2, on_phase: Callable[[str], None] | None = None):
+        self.cache, self.gate, self.poll_seconds = cache, gate, poll_seconds
+        self.on_phase = on_phase  # tests: called as each phase of an iteration trained ahead starts
+        self._cond = threading.Condition()
+        self._pending: _Request | None = None
+        self._working: str | None = None  # the key being trained
+        self._yielded = False  # the iteration being trained gives way at its next phase
+        self._thread: threading.Thread | None = None
+        self._closed = False
+        self.computed = self.cancelled = 0
+
+    # ------------------------------------------------------------------ for the app's sessions
+    def request(self, run) -> bool:
+        """Train `run`'s next iteration in the background (not `run` itself: a copy of it). False when
+        there is nothing to do (see the module's docstring) or it is stored, asked for or training already."""
+        if run.lineage is None or run.finished or run.trainer is not None:
+            return False
+        key = run.next_key()
+        with self._cond:
+            if key in (self._working, self._pending and self._pending.key) or self.cache.has(key):
+                return False
+        arrays, meta = run.learner.state()  # copies of the weights; the data arrays are never changed in place
+        with self._cond:
+            if self._closed:
+                return False
+            self._pending = _Request(key, run.config.to_dict(), run.iteration, arrays, meta)
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._work, name="ifo-ahead", daemon=True)
+                self._thread.start()
+                atexit.register(self.close)
+            self._cond.notify_all()
+        return True
+
+    def yield_to(self, key: str | None) -> None:
+        """A Step is about to train `key` (None: something never shared): anything else gives way."""
+        with self._cond:
+            if self._pending is not None and self._pending.key != key:
+                self._pending = None
+            if self._working is not None and self._working != key:
+                self._yielded = True
+
+    def working_on(self, key: str) -> bool:
+        """Whether `key` is being trained ahead right now (a Step for it waits for the rest)."""
+        with self._cond:
+            return self._working == key
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Stop at the next phase and end the thread (at exit: a thread killed inside torch aborts the process)."""
+        with self._cond:
+            self._closed, self._pending, self._yielded = True, None, True
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        """Block until nothing is asked for or training (tests and benchmarks)."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._pending is None and self._working is None, timeout)
+
+    # ------------------------------------------------------------------ the background thread
+    def _work(self) -> None:
+        from ifo.runtime import limit_threads
+
+        limit_threads()
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._pending is not None or self._closed)
+                if self._closed:
+                    return
+                request, self._pending = self._pending, None
+                self._working, self._yielded = request.key, False
+            try:
+                if self._take_gate():
+                    try:
+                        self._train(request)
+                    finally:
+                        if self.gate is not None:
+                            self.gate.release()
+            except Exception:  # noqa: BLE001 - the Step will train it; the lesson goes on
+                log.exception("training an iteration ahead failed")
+            finally:
+                with self._cond:
+                    self._working = None
+                    self._cond.notify_all()
+
+    def _take_gate(self) -> bool:
+        """A slot of the training gate, once one is free; False if the request was overtaken meanwhile."""
+        while self.gate is not None and not self.gate.acquire(timeout=self.poll_seconds):
+            with self._cond:
+                if self._yielded or self._pending is not None:
+                    return False
+        return True
+
+    def _train(self, request: _Request) -> None:
+        from ifo.remote import kept_run
+
+        run = kept_run(request.config)  # built once per configuration (its I_pre is kept per process)
+        run.progress = self._check
+        try:
+            with self.cache.lock(request.key, timeout=0):  # a session training it already: leave it
+                if self.cache.has(request.key):
+                    return
+                entry = run.train_from(request.iteration, request.arrays, request.meta)
+                self.cache.put(request.key, entry)
+                self.computed += 1
+        except Timeout:
+            return
+        except StepCancelled:
+            self.cancelled += 1
+        finally:
+            run.progress = None
+
+    def _check(self, phase: str, iteration: int) -> None:
+        """The copy's progress callback: the point where an iteration trained ahead gives way."""
+        if self.on_phase is not None:
+            self.on_phase(phase)
+        with self._cond:
+            if self._yielded:
+                raise StepCancelled("a Step needs the machine")
+
+
+__all__ = ["ComputeAhead"]
