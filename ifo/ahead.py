@@ -10,9 +10,9 @@ of ifo.remote rely on too).
 
 - One background thread per process, one iteration at a time. Only the newest request waits: a run
   stepped again, or another run stepped, makes an older one that has not started moot.
-- It gives way. It trains only once it holds a slot of the app's training gate (never more trainings
-  at once than the gate allows), and a Step that must train something else cancels it at its next
-  phase (`yield_to`): the machine is a class's before it is the next iteration's.
+- It gives way. It starts only while no session's Step trains or waits to train anything else, and
+  with a slot of the app's training gate (never more trainings at once than the gate allows); such a
+  Step starting cancels it at its next phase (`stepping`): the machine is the class's first.
 - It trains its own copy of the run (`ifo.remote.kept_run`, the last few kept), from the state the run
   had when it asked; the run a session holds is never touched.
 - Nothing to do without a cache, for a run on a user's own demonstrations (never shared), for a
@@ -23,6 +23,8 @@ from __future__ import annotations
 import atexit
 import logging
 import threading
+from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable
 
@@ -52,9 +54,9 @@ class ComputeAhead:
         self._cond = threading.Condition()
         self._pending: _Request | None = None
         self._working: str | None = None  # the key being trained
-        self._yielded = False  # the iteration being trained gives way at its next phase
-        self._thread: threading.Thread | None = None
+        self._stepping: Counter = Counter()  # the keys sessions' Steps train or wait for right now
         self._closed = False
+        self._thread: threading.Thread | None = None
         self.computed = self.cancelled = 0
 
     # ------------------------------------------------------------------ for the app's sessions
@@ -79,13 +81,27 @@ class ComputeAhead:
             self._cond.notify_all()
         return True
 
-    def yield_to(self, key: str | None) -> None:
-        """A Step is about to train `key` (None: something never shared): anything else gives way."""
+    @contextmanager
+    def stepping(self, key: str | None):
+        """A session's Step trains `key` (or waits for it) while the block runs (None: a run never shared).
+        Meanwhile nothing else trains ahead: a request for another key waiting to start is dropped, and
+        one training stops at its next phase. One for `key` goes on: the Step waits for the rest of it."""
         with self._cond:
+            self._stepping[key] += 1
             if self._pending is not None and self._pending.key != key:
                 self._pending = None
-            if self._working is not None and self._working != key:
-                self._yielded = True
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._stepping[key] -= 1
+                if not self._stepping[key]:
+                    del self._stepping[key]
+                self._cond.notify_all()
+
+    def _gives_way(self, key: str) -> bool:
+        """Called with the lock held: whether `key` must wait or stop (a Step of something else, or closing)."""
+        return self._closed or any(k != key for k in self._stepping)
 
     def working_on(self, key: str) -> bool:
         """Whether `key` is being trained ahead right now (a Step for it waits for the rest)."""
@@ -95,7 +111,7 @@ class ComputeAhead:
     def close(self, timeout: float = 30.0) -> None:
         """Stop at the next phase and end the thread (at exit: a thread killed inside torch aborts the process)."""
         with self._cond:
-            self._closed, self._pending, self._yielded = True, None, True
+            self._closed, self._pending = True, None
             self._cond.notify_all()
         if self._thread is not None:
             self._thread.join(timeout)
@@ -116,9 +132,9 @@ class ComputeAhead:
                 if self._closed:
                     return
                 request, self._pending = self._pending, None
-                self._working, self._yielded = request.key, False
+                self._working = request.key
             try:
-                if self._take_gate():
+                if self._take_gate(request.key):
                     try:
                         self._train(request)
                     finally:
@@ -131,13 +147,18 @@ class ComputeAhead:
                     self._working = None
                     self._cond.notify_all()
 
-    def _take_gate(self) -> bool:
-        """A slot of the training gate, once one is free; False if the request was overtaken meanwhile."""
-        while self.gate is not None and not self.gate.acquire(timeout=self.poll_seconds):
+    def _take_gate(self, key: str) -> bool:
+        """Once no other Step trains and a slot of the training gate is free, that slot; False if the
+        request was overtaken meanwhile (a newer one, or closing)."""
+        while True:
             with self._cond:
-                if self._yielded or self._pending is not None:
+                self._cond.wait_for(lambda: not self._gives_way(key) or self._pending is not None, self.poll_seconds)
+                if self._pending is not None or self._closed:
                     return False
-        return True
+                if self._gives_way(key):
+                    continue
+            if self.gate is None or self.gate.acquire(timeout=self.poll_seconds):
+                return True
 
     def _train(self, request: _Request) -> None:
         from ifo.remote import kept_run
@@ -163,7 +184,7 @@ class ComputeAhead:
         if self.on_phase is not None:
             self.on_phase(phase)
         with self._cond:
-            if self._yielded:
+            if self._gives_way(self._working):
                 raise StepCancelled("a Step needs the machine")
 
 

@@ -42,7 +42,7 @@ def test_a_step_takes_the_iteration_computed_ahead_number_for_number(cache):
     assert run.last_step_cached and strip(run.records) == strip(fresh.records)
 
 
-def test_a_step_that_must_train_something_else_makes_the_background_give_way(cache):
+def test_a_step_of_something_else_makes_the_background_give_way_and_a_step_of_the_same_waits_for_it(cache):
     started, go_on = threading.Event(), threading.Event()
 
     def on_phase(phase):  # hold the iteration trained ahead at its first phase until the test says
@@ -52,15 +52,30 @@ def test_a_step_that_must_train_something_else_makes_the_background_give_way(cac
     ahead = ComputeAhead(cache, on_phase=on_phase)
     run = Run(make_tiny_config(method="iupe"), cache=cache)
     key = run.next_key()
-    assert ahead.request(run)
-    assert started.wait(120) and ahead.working_on(key)
-    ahead.yield_to(key)  # a Step of the same iteration waits for it instead
-    ahead.yield_to("another session's iteration")
-    go_on.set()
-    assert ahead.wait_idle(60)
+    assert ahead.request(run) and started.wait(120) and ahead.working_on(key)
+    with ahead.stepping(key), ahead.stepping("another session's iteration"):
+        go_on.set()
+        assert ahead.wait_idle(60)
     assert ahead.cancelled == 1 and ahead.computed == 0 and not cache.has(key)
     run.step()  # the run trains it itself, as if nothing had happened
     assert not run.last_step_cached and run.iteration == 1
+
+    started.clear()
+    go_on.clear()
+    assert ahead.request(run) and started.wait(120)
+    with ahead.stepping(run.next_key()):  # the teacher presses Step while it trains: it goes on
+        go_on.set()
+        assert ahead.wait_idle(60)
+    assert ahead.computed == 1 and cache.has(run.next_key())
+
+
+def test_the_background_waits_while_another_session_steps(cache):
+    ahead = ComputeAhead(cache, poll_seconds=0.05)
+    run = Run(make_tiny_config(), cache=cache)
+    with ahead.stepping("another session's iteration"):
+        assert ahead.request(run)
+        assert not ahead.wait_idle(1.0) and not cache.has(run.next_key())
+    assert ahead.wait_idle(120) and cache.has(run.next_key())
 
 
 def test_the_background_trains_only_with_a_free_slot_of_the_training_gate(cache):

@@ -30,6 +30,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 
 import streamlit as st
@@ -436,10 +437,18 @@ class RunSlot:
             self._compute_ahead(run)
             return
         ahead, key = compute_ahead(), run.next_key() if run.lineage is not None else None
-        if ahead is not None:
-            ahead.yield_to(key)  # training anything else ahead stops: this Step needs the machine
-            if key is not None and ahead.working_on(key):
+        with ahead.stepping(key) if ahead is not None else nullcontext():  # nothing else trains ahead meanwhile
+            if ahead is not None and key is not None and ahead.working_on(key):
                 bar.show(area.info, f"Iteration {run.iteration + 1} was already being computed ahead; finishing it...")
+            self._train(run, bar, area)
+        if bar.deferred is not None:  # the click that arrived during the iteration: handle it now
+            raise bar.deferred
+        self._stop_play_at_target(run)
+        self._compute_ahead(run)
+
+    def _train(self, run: Run, bar: "_ProgressBar", area) -> None:
+        """The next iteration of `run` (trained here, or taken from the cache once whoever trains it is done)."""
+        s = self.state
         _acquire(_TRAININGS, bar, area, "Waiting for other sessions' training to finish...")
         s.training = True
         try:
@@ -458,10 +467,6 @@ class RunSlot:
             run.progress = None
             _TRAININGS.release()
             bar.show(area.empty)
-        if bar.deferred is not None:  # the click that arrived during the iteration: handle it now
-            raise bar.deferred
-        self._stop_play_at_target(run)
-        self._compute_ahead(run)
 
     def _stop_play_at_target(self, run: Run) -> None:
         s = self.state
