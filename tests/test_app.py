@@ -125,6 +125,7 @@ def test_the_next_iteration_is_ready_when_the_teacher_presses_step_again():
     assert not at.exception and not at.error and counter(at) == "Iteration 2 of 10"
     run = slot(at).run
     assert run.last_step_cached  # taken, not trained
+    assert any("Iteration 2 was ready when Step was pressed" in c.value for c in at.caption)  # and the page says so
     alone = Run(run.config)
     alone.run()
     strip = lambda rs: [{k: v for k, v in r.items() if k != "seconds"} for r in rs]  # noqa: E731
@@ -140,6 +141,7 @@ def test_with_ifo_lab_ahead_0_every_step_trains_then(monkeypatch):
     assert compute_ahead() is None
     at.button(key="step").click().run()
     assert counter(at) == "Iteration 2 of 10" and not slot(at).run.last_step_cached
+    assert not any("was ready when Step was pressed" in c.value for c in at.caption)
 
 
 def test_run_n_trains_one_iteration_per_rerun_and_can_pause():

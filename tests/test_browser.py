@@ -167,6 +167,21 @@ def test_step_a_maze(app, page, method):
     expect(page.get_by_text("Grad-CAM of the policy on fixed maze frames")).to_be_visible()
 
 
+def test_the_teachers_next_step_on_a_maze_is_ready_while_the_class_looks(app, page):
+    """A teacher Steps IUPE on the maze and talks over the iteration: the next one trains meanwhile, so the
+    next Step shows it at once and says so."""
+    open_app(page, app, "step", **{"step.env": "maze3", "step.method": "iupe"})
+    expect(page.get_by_text("Current run: IUPE on Maze 3x3, seed 0")).to_be_visible()
+    ready = page.get_by_text(re.compile(r"Iteration \d+ was ready when Step was pressed"))
+    step(page, 1, 15)
+    expect(ready).to_have_count(0)  # the first Step of a run trains
+    page.wait_for_timeout(8000)  # the teacher talks
+    step(page, 2, 15)
+    expect(page.get_by_text("Iteration 2 was ready when Step was pressed")).to_be_visible()
+    expect(error_boxes(page)).to_have_count(0)
+    expect(page.locator(CHART).filter(has_text="Where the policy looks (Grad-CAM)")).to_have_count(1)
+
+
 def test_a_link_naming_the_maze_and_method_as_the_cli_does_opens_them(app, page):
     """`/step?step.env=maze3&step.method=iupe` (the configuration's names, as in the CLI) opens IUPE on the
     3x3 maze, as a link with the page's own labels does; once it opened CartPole without a word."""

@@ -117,6 +117,10 @@ def live():
     if "controls" not in hide:
         with controls_area:  # drawn after the iteration, so Step's state is the run's new one
             controls()
+            if run.last_step_cached and run.records:
+                st.caption(f"Iteration {run.iteration} was ready when Step was pressed: computed ahead while the last "
+                           "one was on screen, or by another session on the same lesson. The same numbers as "
+                           "training it now.")
     slot.sync_url()
     if slot.state.step_error:
         st.error(slot.state.step_error)
