@@ -139,6 +139,7 @@ def live():
     if run.method.sees_expert_actions:
         st.info(f"{run.method.title} learns from the expert's true actions: it is the reference that is allowed "
                 "to see them, so there is no IDM to show.")
+    slot.compute_ahead()  # the next iteration, while the class looks at this one
 
 
 live()

@@ -434,7 +434,6 @@ class RunSlot:
         if run.step_if_cached() is not None:  # computed ahead, or by another session following the lesson
             self.save()
             self._stop_play_at_target(run)
-            self._compute_ahead(run)
             return
         ahead, key = compute_ahead(), run.next_key() if run.lineage is not None else None
         with ahead.stepping(key) if ahead is not None else nullcontext():  # nothing else trains ahead meanwhile
@@ -444,7 +443,6 @@ class RunSlot:
         if bar.deferred is not None:  # the click that arrived during the iteration: handle it now
             raise bar.deferred
         self._stop_play_at_target(run)
-        self._compute_ahead(run)
 
     def _train(self, run: Run, bar: "_ProgressBar", area) -> None:
         """The next iteration of `run` (trained here, or taken from the cache once whoever trains it is done)."""
@@ -473,11 +471,18 @@ class RunSlot:
         if run.iteration >= min(s.target, run.config.iterations):
             s.playing = False
 
-    def _compute_ahead(self, run: Run) -> None:
-        """At rest after a Step (not playing, no error): the next iteration trains while the class looks."""
-        ahead = compute_ahead()
-        if ahead is not None and not self.state.playing and self.state.step_error is None:
-            ahead.request(run)
+    def compute_ahead(self) -> None:
+        """At rest after a Step (not playing, no error, not training): the next iteration trains in the
+        background while the class looks at this one. The page calls it once it is drawn, so the drawing
+        has the machine first; asking again for the same iteration costs nothing."""
+        s, ahead = self.state, compute_ahead()
+        if ahead is None or s.run is None or not s.run.records or s.playing or s.step_error is not None:
+            return
+        if s.lock.acquire(blocking=False):  # not while an iteration of this run trains in another thread
+            try:
+                ahead.request(s.run)
+            finally:
+                s.lock.release()
 
 
 def _acquire(lock, bar: _ProgressBar, area, message: str) -> None:
