@@ -10,9 +10,10 @@ of ifo.remote rely on too).
 
 - One background thread per process, one iteration at a time. Only the newest request waits: a run
   stepped again, or another run stepped, makes an older one that has not started moot.
-- It gives way. It starts only while no session's Step trains or waits to train anything else, and
-  with a slot of the app's training gate (never more trainings at once than the gate allows); such a
-  Step starting cancels it at its next phase (`stepping`): the machine is the class's first.
+- It gives way. It starts only once no session has stepped for `quiet_seconds` (a class stepping its
+  own runs, or catching up on the teacher's, has the machine), and with a slot of the app's training
+  gate (never more trainings at once than the gate allows); a Step that trains anything else cancels
+  it at its next phase (`stepping`).
 - It trains its own copy of the run (`ifo.remote.kept_run`, the last few kept), from the state the run
   had when it asked; the run a session holds is never touched.
 - Nothing to do without a cache, for a run on a user's own demonstrations (never shared), for a
@@ -23,6 +24,7 @@ from __future__ import annotations
 import atexit
 import logging
 import threading
+import time
 from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -47,9 +49,10 @@ class _Request:
 
 
 class ComputeAhead:
-    def __init__(self, cache: IterationCache, gate: threading.Semaphore | None = None,
+    def __init__(self, cache: IterationCache, gate: threading.Semaphore | None = None, quiet_seconds: float = 1.0,
                  poll_seconds: float = 0.2, on_phase: Callable[[str], None] | None = None):
-        self.cache, self.gate, self.poll_seconds = cache, gate, poll_seconds
+        self.cache, self.gate, self.quiet_seconds, self.poll_seconds = cache, gate, quiet_seconds, poll_seconds
+        self._last_step = -float("inf")  # time.monotonic() of the last Step's start or end, any session's
         self.on_phase = on_phase  # tests: called as each phase of an iteration trained ahead starts
         self._cond = threading.Condition()
         self._pending: _Request | None = None
@@ -88,6 +91,7 @@ class ComputeAhead:
         one training stops at its next phase. One for `key` goes on: the Step waits for the rest of it."""
         with self._cond:
             self._stepping[key] += 1
+            self._last_step = time.monotonic()
             if self._pending is not None and self._pending.key != key:
                 self._pending = None
         try:
@@ -97,7 +101,13 @@ class ComputeAhead:
                 self._stepping[key] -= 1
                 if not self._stepping[key]:
                     del self._stepping[key]
+                self._last_step = time.monotonic()
                 self._cond.notify_all()
+
+    def stepped(self) -> None:
+        """A session took a ready iteration (no training): the class is busy, so nothing starts for a moment."""
+        with self._cond:
+            self._last_step = time.monotonic()
 
     def _gives_way(self, key: str) -> bool:
         """Called with the lock held: whether `key` must wait or stop (a Step of something else, or closing)."""
@@ -148,14 +158,14 @@ class ComputeAhead:
                     self._cond.notify_all()
 
     def _take_gate(self, key: str) -> bool:
-        """Once no other Step trains and a slot of the training gate is free, that slot; False if the
-        request was overtaken meanwhile (a newer one, or closing)."""
+        """Once no Step of anything else trains, none has for `quiet_seconds`, and a slot of the training
+        gate is free: that slot. False if the request was overtaken meanwhile (a newer one, or closing)."""
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: not self._gives_way(key) or self._pending is not None, self.poll_seconds)
+                self._cond.wait_for(lambda: self._pending is not None or self._closed, self.poll_seconds)
                 if self._pending is not None or self._closed:
                     return False
-                if self._gives_way(key):
+                if self._gives_way(key) or time.monotonic() - self._last_step < self.quiet_seconds:
                     continue
             if self.gate is None or self.gate.acquire(timeout=self.poll_seconds):
                 return True

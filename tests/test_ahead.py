@@ -69,12 +69,18 @@ def test_a_step_of_something_else_makes_the_background_give_way_and_a_step_of_th
     assert ahead.computed == 1 and cache.has(run.next_key())
 
 
-def test_the_background_waits_while_another_session_steps(cache):
-    ahead = ComputeAhead(cache, poll_seconds=0.05)
+def test_the_background_waits_while_another_session_steps_and_until_the_class_is_quiet(cache):
+    import time
+
+    ahead = ComputeAhead(cache, quiet_seconds=1.5, poll_seconds=0.05)
     run = Run(make_tiny_config(), cache=cache)
     with ahead.stepping("another session's iteration"):
         assert ahead.request(run)
         assert not ahead.wait_idle(1.0) and not cache.has(run.next_key())
+    for _ in range(10):  # students keep taking ready iterations: the class is busy
+        ahead.stepped()
+        time.sleep(0.1)
+        assert not cache.has(run.next_key())
     assert ahead.wait_idle(120) and cache.has(run.next_key())
 
 

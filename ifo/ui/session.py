@@ -432,6 +432,8 @@ class RunSlot:
             s.playing = False
             return
         if run.step_if_cached() is not None:  # computed ahead, or by another session following the lesson
+            if (ahead := compute_ahead()) is not None:
+                ahead.stepped()
             self.save()
             self._stop_play_at_target(run)
             return
