@@ -69,10 +69,10 @@ def main() -> int:
             with tempfile.TemporaryDirectory(prefix="ifo-ahead-bench-") as runs:
                 os.environ["IFO_LAB_RUNS"] = runs
                 seconds, ready = teacher_steps(env, a.method, a.steps, a.talk)
-                from ifo.ui.session import compute_ahead
+                from ifo.ui.session import server_ahead
 
                 if ahead == "1":
-                    compute_ahead().close()  # nothing left training into the next measurement
+                    server_ahead().close()  # nothing left training into the next measurement
             row += [statistics.median(seconds), max(seconds), f"{ready}/{len(seconds)}"]
         rows.append(row)
     load = os.getloadavg()[0]

@@ -115,11 +115,11 @@ def test_the_next_iteration_is_ready_when_the_teacher_presses_step_again():
     """After a Step the next iteration trains in the background while the class looks (ifo.ahead): the next
     Step takes it ready-made, and its records are those training it then would give."""
     from ifo.run import Run
-    from ifo.ui.session import compute_ahead
+    from ifo.ui.session import server_ahead
 
     at = open_step_page()
     at.button(key="step").click().run()
-    ahead = compute_ahead()
+    ahead = server_ahead()
     assert ahead is not None and ahead.wait_idle(120) and ahead.computed == 1
     at.button(key="step").click().run()
     assert not at.exception and not at.error and counter(at) == "Iteration 2 of 10"
@@ -133,12 +133,12 @@ def test_the_next_iteration_is_ready_when_the_teacher_presses_step_again():
 
 
 def test_with_ifo_lab_ahead_0_every_step_trains_then(monkeypatch):
-    from ifo.ui.session import compute_ahead
+    from ifo.ui.session import server_ahead
 
     monkeypatch.setenv("IFO_LAB_AHEAD", "0")
     at = open_step_page()
     at.button(key="step").click().run()
-    assert compute_ahead() is None
+    assert server_ahead() is None
     at.button(key="step").click().run()
     assert counter(at) == "Iteration 2 of 10" and not slot(at).run.last_step_cached
     assert not any("was ready when Step was pressed" in c.value for c in at.caption)

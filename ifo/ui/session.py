@@ -15,7 +15,10 @@ A page owns a `RunSlot` (named, so several pages can each keep their own run). T
   user (`?user=` in the URL) and a run id fixed for the run's life, and reopens a saved
   run named by `?run=<run id>` (`open_from_url`);
 - caches rollout videos of the policy per iteration (`render_videos`), never in
-  st.cache_resource: a model belongs to one session.
+  st.cache_resource: a model belongs to one session;
+- once the page is drawn after a Step, asks the server's one `ComputeAhead` (ifo.ahead,
+  `server_ahead`) to train the next iteration in the background (`compute_ahead`), and tells
+  it when a Step trains (`stepping`), so it gives way.
 
 Clicks that arrive while an iteration trains are held back until the iteration ends (a
 Streamlit rerun request raised inside `Run.step()` would leave the run half-trained). A
@@ -51,7 +54,7 @@ _AHEAD_LOCK = threading.Lock()
 _AHEAD: dict = {}
 
 
-def compute_ahead():
+def server_ahead():
     """The server's one `ComputeAhead` (ifo.ahead): after a Step, the next iteration trains in the
     background into the shared cache, within the training gate, giving way to any Step. None without
     the cache (IFO_LAB_CACHE_MB=0) or with IFO_LAB_AHEAD=0."""
@@ -64,6 +67,7 @@ def compute_ahead():
 
             _AHEAD[cache.root] = ComputeAhead(cache, gate=_TRAININGS)
         return _AHEAD[cache.root]
+
 
 def _identity(config: RunConfig) -> dict:
     """What makes a run a different run: everything but the number of iterations."""
@@ -432,12 +436,12 @@ class RunSlot:
             s.playing = False
             return
         if run.step_if_cached() is not None:  # computed ahead, or by another session following the lesson
-            if (ahead := compute_ahead()) is not None:
+            if (ahead := server_ahead()) is not None:
                 ahead.stepped()
             self.save()
             self._stop_play_at_target(run)
             return
-        ahead, key = compute_ahead(), run.next_key() if run.lineage is not None else None
+        ahead, key = server_ahead(), run.next_key() if run.lineage is not None else None
         with ahead.stepping(key) if ahead is not None else nullcontext():  # nothing else trains ahead meanwhile
             if ahead is not None and key is not None and ahead.working_on(key):
                 bar.show(area.info, f"Iteration {run.iteration + 1} was already being computed ahead; finishing it...")
@@ -477,7 +481,7 @@ class RunSlot:
         """At rest after a Step (not playing, no error, not training): the next iteration trains in the
         background while the class looks at this one. The page calls it once it is drawn, so the drawing
         has the machine first; asking again for the same iteration costs nothing."""
-        s, ahead = self.state, compute_ahead()
+        s, ahead = self.state, server_ahead()
         if ahead is None or s.run is None or not s.run.records or s.playing or s.step_error is not None:
             return
         if s.lock.acquire(blocking=False):  # not while an iteration of this run trains in another thread
