@@ -70,16 +70,39 @@ def _fmt(v, spec=".3f") -> str:
 
 
 def cmd_train(a: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from ifo.run import Run
-
     from ifo import checkpoint
 
     cfg = config_from_args(a)
     out = Path(a.out) if a.out else RUNS_DIR / f"{cfg.env}-{cfg.method}-s{cfg.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    created = not out.exists()
     checkpoint.prepare_out_dir(out, overwrite=a.overwrite)  # before minutes of training, not after
     start = time.perf_counter()
+    try:
+        run = _train(cfg, out, a)
+    except BaseException:
+        if created:  # a run that failed before its first save (bad settings, Ctrl-C) leaves no empty folder
+            try:
+                out.rmdir()
+            except OSError:  # not empty: the iterations saved so far stay
+                pass
+        raise
+    ev = run.records[-1]["evaluation"]
+    summary = {"env": cfg.env, "method": cfg.method, "seed": cfg.seed, "iterations": run.iteration,
+               "aer": ev["aer"], "aer_std": ev["aer_std"], "performance": ev["performance"],
+               "goal_rate": ev["goal_rate"], "seconds": round(time.perf_counter() - start, 3), "run_dir": str(out)}
+    if a.json:
+        print(json.dumps(summary))
+    else:
+        print(f"saved to {out}: AER {ev['aer']:.2f} ± {ev['aer_std']:.2f}, P {_fmt(ev['performance'])}")
+    return 0
+
+
+def _train(cfg, out: Path, a: argparse.Namespace):
+    """Every iteration of a run of `cfg`, each saved to `out` as it ends."""
+    from tqdm import tqdm
+
+    from ifo.run import Run
+
     run = Run(cfg)
     bar = tqdm(total=cfg.iterations, desc=f"{cfg.method} on {cfg.env}", file=sys.stderr, disable=a.quiet)
     for _ in range(cfg.iterations):
@@ -93,15 +116,7 @@ def cmd_train(a: argparse.Namespace) -> int:
                   f"goal {ev['goal_rate']:.2f}  {idm_text}{rec['seconds']['total']:.2f}s", file=sys.stdout)
         run.save(out, overwrite=a.overwrite and run.iteration == 1)
     bar.close()
-    ev = run.records[-1]["evaluation"]
-    summary = {"env": cfg.env, "method": cfg.method, "seed": cfg.seed, "iterations": run.iteration,
-               "aer": ev["aer"], "aer_std": ev["aer_std"], "performance": ev["performance"],
-               "goal_rate": ev["goal_rate"], "seconds": round(time.perf_counter() - start, 3), "run_dir": str(out)}
-    if a.json:
-        print(json.dumps(summary))
-    else:
-        print(f"saved to {out}: AER {ev['aer']:.2f} ± {ev['aer_std']:.2f}, P {_fmt(ev['performance'])}")
-    return 0
+    return run
 
 
 def cmd_demos_check(a: argparse.Namespace) -> int:
