@@ -167,6 +167,24 @@ def test_step_a_maze(app, page, method):
     expect(page.get_by_text("Grad-CAM of the policy on fixed maze frames")).to_be_visible()
 
 
+def test_the_teachers_next_step_on_cartpole_is_ready_after_arriving_by_the_sidebar(app, page):
+    """The same on a vector task, arriving as a teacher does from the landing page by the sidebar: IUPE on
+    CartPole (a seed of its own: the server's iteration cache is shared by every journey)."""
+    open_app(page, app)
+    go_by_sidebar(page, "Step through a run")
+    choose(page, "Method", "IUPE")
+    type_number(page, "Seed", 18, where=sidebar(page))
+    expect(page.get_by_text("Current run: IUPE on CartPole, seed 18")).to_be_visible()
+    ready = page.get_by_text(re.compile(r"Iteration \d+ was ready when Step was pressed"))
+    step(page, 1)
+    expect(ready).to_have_count(0)  # the first Step of a run trains
+    page.wait_for_timeout(6000)  # the teacher talks
+    step(page, 2)
+    expect(page.get_by_text("Iteration 2 was ready when Step was pressed")).to_be_visible()
+    expect(error_boxes(page)).to_have_count(0)
+    expect(page.locator(CHART).filter(has_text="Average episodic reward")).to_have_count(1)
+
+
 def test_the_teachers_next_step_on_a_maze_is_ready_while_the_class_looks(app, page):
     """A teacher Steps IUPE on the maze and talks over the iteration: the next one trains meanwhile, so the
     next Step shows it at once and says so."""
