@@ -17,7 +17,8 @@ of ifo.remote rely on too).
 - It trains its own copy of the run (`ifo.remote.kept_run`, the last few kept), from the state the run
   had when it asked; the run a session holds is never touched.
 - Nothing to do without a cache, for a run on a user's own demonstrations (never shared), for a
-  finished run, or for a run that trains on Ray (the cluster trains its Steps).
+  finished run, or for a run that trains on Ray (the cluster trains its Steps). An iteration whose
+  training here failed is not asked for again (it is logged once; the Step trains it and shows why).
 """
 from __future__ import annotations
 
@@ -58,6 +59,7 @@ class ComputeAhead:
         self._pending: _Request | None = None
         self._working: str | None = None  # the key being trained
         self._stepping: Counter = Counter()  # the keys sessions' Steps train or wait for right now
+        self._failed: set[str] = set()  # keys whose training ahead raised: each page run would ask again
         self._closed = False
         self._thread: threading.Thread | None = None
         self.computed = self.cancelled = 0
@@ -70,7 +72,8 @@ class ComputeAhead:
             return False
         key = run.next_key()
         with self._cond:
-            if key in (self._working, self._pending and self._pending.key) or self.cache.has(key):
+            if key in (self._working, self._pending and self._pending.key) or key in self._failed \
+                    or self.cache.has(key):
                 return False
         arrays, meta = run.learner.state()  # copies of the weights; the data arrays are never changed in place
         with self._cond:
@@ -151,7 +154,9 @@ class ComputeAhead:
                         if self.gate is not None:
                             self.gate.release()
             except Exception:  # noqa: BLE001 - the Step will train it; the lesson goes on
-                log.exception("training an iteration ahead failed")
+                log.exception("training an iteration ahead failed; it is not asked for again")
+                with self._cond:
+                    self._failed.add(request.key)
             finally:
                 with self._cond:
                     self._working = None

@@ -109,3 +109,21 @@ def test_nothing_is_computed_ahead_for_a_finished_run_or_one_on_a_users_own_demo
     shutil.copy(ROOT / "assets" / "demos" / "cartpole.npz", path)
     own = Run(make_tiny_config(demos=str(path)), cache=cache)
     assert own.lineage is None and not ahead.request(own)  # never shared, so never trained ahead either
+
+
+def test_an_iteration_whose_training_ahead_failed_is_not_asked_for_again(cache, monkeypatch, caplog):
+    ahead = ComputeAhead(cache, quiet_seconds=0)
+    run = Run(make_tiny_config(), cache=cache)
+
+    def broken(self, *args, **kwargs):
+        raise RuntimeError("out of memory")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(Run, "train_from", broken)
+        assert ahead.request(run) and ahead.wait_idle(120)
+    assert ahead.computed == 0 and not cache.has(run.next_key())
+    assert sum("training an iteration ahead failed" in r.getMessage() for r in caplog.records) == 1
+    assert not ahead.request(run)  # every page run asks: once is enough
+    run.step()  # the Step trains it itself
+    assert not run.last_step_cached and run.iteration == 1
+    assert ahead.request(run) and ahead.wait_idle(120) and ahead.computed == 1  # the next one is asked for
