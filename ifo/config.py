@@ -58,7 +58,7 @@ class RunConfig:
     demos: str | None = option(None, "your own demonstrations (.npz: obs, rewards, episode_starts[, actions])",
                                advanced=True)
     obs_mode: str = option("image", "maze observations: images, or a vector of the agent's cell and the walls",
-                           choices=("image", "vector"), advanced=True)
+                           choices=("image", "vector"), advanced=True, title="Maze observations")
     image_size: int = option(32, "maze image side in pixels", low=16, high=256, advanced=True, work=2)
     rollout_max_steps: int | None = option(None, "maze: step limit of the learner's own runs (I_pre, I_pos)",
                                            low=1, high=100_000, advanced=True, work=1)

@@ -207,7 +207,7 @@ def test_ilpo_remapping_recovers_a_permutation_of_the_actions():
 
 
 def test_ilpo_refuses_images_with_a_clear_message():
-    with pytest.raises(ValueError, match="vector states only.*obs_mode=vector"):
+    with pytest.raises(ValueError, match="vector states only.*\"Maze observations\": vector; --obs-mode vector"):
         Run(RunConfig.from_dict(dict(env="maze3", method="ilpo", expert_episodes=2, eval_episodes=2,
                                      pre_size=100)))
 

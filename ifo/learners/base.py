@@ -170,8 +170,12 @@ class Context:
     def require_vector_states(self, method: str, why: str = "") -> None:
         """ValueError in plain words when a method that reads state vectors gets images (the maze)."""
         if len(self.obs_shape) != 1:
-            raise ValueError(f"{method} learns from vector states{why}; for the maze choose its vector "
-                             "observations (obs_mode=vector)")
+            from ifo.config import RunConfig
+            from ifo.options import specs
+
+            [setting] = [s for s in specs(RunConfig) if s.name == "obs_mode"]
+            raise ValueError(f"{method} learns from vector states{why}; on a maze choose its vector observations "
+                             f"(the setting \"{setting.label}\": vector; {setting.flag} vector)")
 
     def random_transitions(self, size: int, per_action_cap: int,
                            rng: np.random.Generator) -> tuple[Transitions, int]:
