@@ -50,7 +50,7 @@ import numpy as np
 from filelock import FileLock, Timeout
 
 from ifo.data.npz import NpzError, read_npz
-from ifo.io import npz_bytes
+from ifo.io import FAST_DEFLATE, npz_bytes
 from ifo.runtime import file_stamp
 
 LATEST_FILE, LABEL_FILE, DEMOS_FILE, LOCK_FILE = "LATEST", "label.json", "demos.npz", ".lock"
@@ -234,7 +234,7 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
         total += a.nbytes
     if total > MAX_ARRAYS_BYTES:
         raise CheckpointError(f"the state arrays are {_mib(total)}, over the {_mib(MAX_ARRAYS_BYTES)} limit")
-    data = npz_bytes(arrays)
+    data = npz_bytes(arrays, FAST_DEFLATE)
     if len(data) > MAX_STATE_BYTES:
         raise CheckpointError(f"state.npz would be {_mib(len(data))}, over the {_mib(MAX_STATE_BYTES)} limit")
     return data

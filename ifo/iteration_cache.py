@@ -28,7 +28,7 @@ import numpy as np
 from filelock import FileLock, Timeout
 
 from ifo.data.npz import NpzError, read_npz
-from ifo.io import npz_bytes
+from ifo.io import FAST_DEFLATE, npz_bytes
 from ifo.runtime import BoundedCache
 
 MAX_RECORD_BYTES = 16 << 20
@@ -129,7 +129,7 @@ class IterationCache:
         tmp = path.parent / f".{key}.{uuid.uuid4().hex[:8]}.tmp"
         tmp.mkdir()
         try:
-            (tmp / "entry.npz").write_bytes(npz_bytes(entry.arrays))
+            (tmp / "entry.npz").write_bytes(npz_bytes(entry.arrays, FAST_DEFLATE))
             (tmp / "record.json").write_text(json.dumps({"meta": entry.meta, "record": entry.record}))
             os.rename(tmp, path)
         except OSError:  # a full disk, a race with another writer of the same key: the cache is optional

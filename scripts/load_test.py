@@ -4,6 +4,7 @@
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode lesson --sessions 30 --lead 2 --full
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --mode free --sessions 10 --full
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --client protocol --mode lesson --sessions 30 --lead 3 --think 5 --full
+    PYTHONPATH=. .venv/bin/python scripts/load_test.py --client protocol --mode lesson --sessions 30 --lead 3 --full --env maze5
     PYTHONPATH=. .venv/bin/python scripts/load_test.py --client protocol --mode watch --sessions 31 --think 3 --full
 
 Modes: "lesson" (every session on the same configuration and seed, the teacher's session starting
@@ -49,13 +50,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from ifo.envs import ENV_NAMES  # noqa: E402
 from scripts.app_server import healthy, serve_app  # noqa: E402
 CHROMIUM = "/usr/bin/chromium"
 IDLE = "[data-testid='stApp'][data-test-script-state='notRunning']"
 LOOPBACK = {"127.0.0.1", "localhost", "::1"}
 
 
-LESSON = {"step.method": "IUPE"}  # what every session of a lesson opens (CartPole, seed 0)
+LESSON = {"step.method": "IUPE"}  # what every session of a lesson opens (CartPole, seed 0; `--env` sets step.env)
 
 
 def step_query(mode: str, k: int) -> str:
@@ -457,6 +459,8 @@ def main(argv: list[str] | None = None) -> int:
                              "watch (protocol clients): the teacher Steps, the others watch the shared run")
     parser.add_argument("--lead", type=int, default=0, help="lesson: the teacher's Steps ahead of the class")
     parser.add_argument("--full", action="store_true", help="real sizes (default: IFO_LAB_FAST's tiny runs)")
+    parser.add_argument("--env", choices=ENV_NAMES, default="cartpole",
+                        help="the task every session steps IUPE on (default: CartPole)")
     parser.add_argument("--ray", action="store_true",
                         help="the app it serves trains on a Ray started for the test on this machine (`ray start "
                              "--head`, IFO_LAB_RAY=auto): trainings in worker processes, not in the server's own")
@@ -470,6 +474,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="protocol: each session reads the page for a random 0..2×THINK seconds before every "
                              "Step, as a class does (default 0: every session presses at once, the worst case)")
     args = parser.parse_args(argv)
+    if args.env != "cartpole":
+        LESSON["step.env"] = args.env  # the page takes the configuration's names in its URL
     if args.think and args.client != "protocol" or not 0 <= args.think <= 600:
         parser.error("--think is 0..600 seconds, with --client protocol")
     if args.mode == "watch" and (args.client != "protocol" or args.url or args.sessions < 2):

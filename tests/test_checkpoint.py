@@ -542,3 +542,25 @@ def test_state_arrays_are_written_as_a_plain_npz_that_numpy_reads_back_exactly()
             assert loaded[name].dtype == a.dtype
     back = read_npz(data, max_array_bytes=1 << 20, max_total_bytes=1 << 20)
     assert set(back) == set(arrays) and all(np.array_equal(back[k], v) for k, v in arrays.items())
+
+
+def test_images_are_deflated_fast_when_saved_and_read_back_bit_for_bit(tmp_path):
+    """A Step's autosave of a maze run deflates its images at zlib's fastest level (the wait of a student
+    taking a ready iteration was this compression); the shipped files keep the default level."""
+    import io
+
+    from ifo.io import FAST_DEFLATE, npz_bytes
+
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 255, (40, 32, 32, 3), dtype=np.uint8)  # few distinct frames, as a maze has
+    images = frames[rng.integers(0, 40, 2_000)]
+    arrays = {"train_set.states": images, "weights": rng.normal(size=(64, 64)).astype(np.float32)}
+    fast, small = npz_bytes(arrays, FAST_DEFLATE), npz_bytes(arrays)
+    assert len(fast) != len(small)  # the level is honoured (it is set on each entry, not on the archive)
+    assert npz_bytes(arrays, FAST_DEFLATE) == fast  # same arrays, same bytes
+    C.save(tmp_path / "run", config={"env": "maze3"}, records=[{"iteration": 1}], arrays=arrays, meta={}, parent=None)
+    back = C.load(tmp_path / "run").arrays
+    assert all(np.array_equal(back[k], v) and back[k].dtype == v.dtype for k, v in arrays.items())
+    with zipfile.ZipFile(io.BytesIO(fast)) as zf:
+        assert zf.getinfo("train_set.states.npy").compress_type == zipfile.ZIP_DEFLATED
+        assert zf.getinfo("weights.npy").compress_type == zipfile.ZIP_STORED
