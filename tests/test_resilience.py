@@ -414,3 +414,13 @@ def test_the_resilience_command_draws_fig_7_1_into_the_figures_folder(monkeypatc
     assert [p.name for p in paths] == [f"fig-7-1-cartpole{suffix}", f"fig-7-1-cartpole-fidelity{suffix}"]
     body = paths[0].read_text()
     assert "IUPE" in body and "BC" in body  # the methods' lines, by name
+
+
+def test_a_cell_ships_only_with_every_seed_its_tables_show(tmp_path):
+    """A sweep stopped within a cell (here IUPE with Expert⁴: 1 seed of 2) ships the finished cells and leaves
+    that one out, so the page never draws a curve from fewer runs than its tables say; the Random and Expert
+    rows take one training each."""
+    rows = [r for r in _store_rows() if r["key"] != "IUPE41"]
+    assert ch7.ship_results(rows, tmp_path, seeds=2) == {"cartpole": 10}
+    shipped = {json.loads(line)["key"] for line in (tmp_path / "cartpole.jsonl").read_text().splitlines()}
+    assert "IUPE40" not in shipped and {"BC40", "BC41", "r4", "e4", "IUPE10", "IUPE11"} <= shipped

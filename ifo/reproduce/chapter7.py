@@ -357,11 +357,21 @@ def summary(results: list[dict], env: str) -> list[dict]:
     return out
 
 
+def _seeds_of(spec: dict, seeds: int) -> int:
+    """How many trainings a stored cell's row takes (one for the Random and Expert rows)."""
+    from ifo.reproduce import TABLES, row_seeds
+
+    table = TABLES.get(str(spec.get("table")))
+    row = next((r for r in table.rows if r.label == spec.get("row")), None) if table else None
+    return seeds if row is None else row_seeds(row, seeds)
+
+
 def ship_results(store_rows, out_dir, envs=None, seeds: int | None = None) -> dict:
     """Write each environment's Chapter 7 rows of a sweep store to OUT_DIR/<env>.jsonl (the page's shipped
     results; the store already keeps no per-iteration records), only seeds below `seeds` if given (what the
-    tables show). A file's rows from other sweeps (other cells, another budget) are kept; the same training
-    is replaced. Returns env -> rows written."""
+    tables show), and then only cells with every one of those seeds (a sweep stopped within a cell leaves
+    it out: the page would draw a curve from fewer runs than its tables say). A file's rows from other
+    sweeps (other cells, another budget) are kept; the same training is replaced. Returns env -> rows written."""
     import json
     from pathlib import Path
 
@@ -374,10 +384,15 @@ def ship_results(store_rows, out_dir, envs=None, seeds: int | None = None) -> di
     for row in store_rows:  # the latest row per training, finished ones only
         if row.get("status") == "done" and str(row.get("spec", {}).get("table", "")).startswith("7."):
             latest[row["key"]] = row
+    cells: dict[str, list[dict]] = {}
     for row in latest.values():
         env = row["spec"].get("env")
         if (envs is None or env in envs) and (seeds is None or int(row["spec"].get("seed", 0)) < seeds):
-            by_env.setdefault(env, []).append(row)
+            cell = json.dumps({k: v for k, v in row["spec"].items() if k != "seed"}, sort_keys=True)
+            cells.setdefault(cell, []).append(row)
+    for rows in cells.values():
+        if seeds is None or len(rows) == _seeds_of(rows[0]["spec"], seeds):
+            by_env.setdefault(rows[0]["spec"]["env"], []).extend(rows)
     from ifo.io import atomic_write_text
 
     from filelock import FileLock
