@@ -623,8 +623,8 @@ def test_a_lesson_from_the_landing_page(app, page):
 # ----------------------------------------------------------------------------- 12. sub-optimal experts (Ch. 7)
 def test_the_resilience_page_draws_fig_7_1_and_runs_a_cell(app, page):
     """By the sidebar to "Sub-optimal experts": Fig 7.1 from the shipped CartPole results with fidelity
-    beside it, the longer budget (no ILPO on CartPole) and back, its SVG download, the expert levels; then one cell (BC on Expert⁵, 1 iteration) queued
-    and finished on the page."""
+    beside it, the longer budget (ILPO there with two experts only) and back, its SVG download, the expert levels; then
+    one cell (BC on Expert⁵, 1 iteration) queued and finished on the page."""
     open_app(page, app)
     go_by_sidebar(page, "Sub-optimal experts")
     expect(page.get_by_role("heading", name="Resilience to sub-optimal experts")).to_be_visible()
@@ -632,11 +632,13 @@ def test_the_resilience_page_draws_fig_7_1_and_runs_a_cell(app, page):
     expect(charts).to_have_count(2)  # AER against the expert's AER; fidelity beside it
     expect(charts.first).to_contain_text("expert")
     expect(charts.first).to_contain_text("IUPE")
-    page.get_by_text("40 iterations, all demonstrations:").click()  # the shipped longer budget: no ILPO on CartPole
-    expect(charts.first).not_to_contain_text("ILPO")
+    ilpo_points = charts.first.locator(".scatterlayer .trace").filter(has=page.locator("path.point")).nth(3) \
+        .locator("path.point")  # expert, BC, GAIL, ILPO, IUPE: a point per level
+    page.get_by_text("40 iterations, all demonstrations:").click()  # the shipped longer budget: ILPO with Experts 1-2
     expect(charts.first).to_contain_text("GAIL")
+    expect(ilpo_points).to_have_count(2)
     page.get_by_text("5 iterations, 20 demonstrations: BC, GAIL, ILPO, IUPE").click()
-    expect(charts.first).to_contain_text("ILPO")
+    expect(ilpo_points).to_have_count(5)
     page.get_by_text("The expert levels (Table 7.1)").click()
     expect(page.get_by_text("Levels 2-5 are earlier checkpoints")).to_be_visible()
 
