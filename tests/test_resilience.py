@@ -202,6 +202,16 @@ def test_a_second_sweep_ships_beside_the_first_and_each_budget_reads_alone(tmp_p
     assert sorted((r["method"], r["aer"]) for r in longer) == [("GAIL", 491.0), ("GAIL", 499.0), ("Random", 20.0)]
 
 
+def test_a_method_with_every_expert_trained_is_no_gap():
+    full = [{"method": m, "level": k, "seed": 0, "reference": False, "iterations": 40, "expert_episodes": None,
+             "env": "cartpole"} for m in ch7.LABELS_7 for k in ch7.LEVELS]
+    assert ch7.missing_cells(full) == {} and ch7.missing_cells_text(full, "cartpole") is None
+    short = [r for r in full if not (r["method"] == "ILPO" and r["level"] >= 3)]
+    assert ch7.missing_cells(short) == {"ILPO": [3, 4, 5]}
+    assert ch7.missing_cells(short, ["BC", "IUPE"]) == {}  # only the methods the page shows
+    assert "ILPO on Expert³, Expert⁴, Expert⁵" in ch7.missing_cells_text(short, "cartpole")
+
+
 def test_all_of_each_levels_demonstrations_is_one_budget_though_levels_ship_different_numbers():
     """LunarLander's Expert¹ ships 100 episodes, its Experts 2-5 ship 50: trainings on all of each level's
     episodes are one budget on the page (one curve across the levels), not one budget per level; 20 of them
@@ -335,8 +345,17 @@ def test_the_page_offers_each_shipped_budget_and_draws_one_at_a_time(app_env, mo
     budget = at.radio(key="resilience.budget.cartpole")
     assert budget.options == ["5 iterations, all demonstrations: BC, IUPE", "40 iterations, all demonstrations: GAIL"]
     assert chart_names(at, "resilience.aer") == ["expert", "BC", "IUPE"]  # the budget with every method first
+    short_gaps = [i.value for i in at.info if i.value.startswith("Not trained with this budget yet")]
+    assert len(short_gaps) == 1 and "GAIL on every expert" in short_gaps[0]
+    assert "BC on Expert², Expert³, Expert⁵" in short_gaps[0] and "--seeds 2 --iterations 5 --store" in short_gaps[0]
     budget.set_value((40, None)).run()
     assert chart_names(at, "resilience.aer") == ["expert", "GAIL"]
+    gaps = [i.value for i in at.info if i.value.startswith("Not trained with this budget yet")]
+    # a line that stops short is a gap in the sweep, and the page names it and the command that fills it
+    assert gaps == [ch7.missing_cells_text(ch7.in_budget(ch7.load_shipped_results("cartpole"), (40, None)), "cartpole")]
+    assert "GAIL on Expert², Expert³, Expert⁴, Expert⁵" in gaps[0] and "ILPO on every expert" in gaps[0]
+    assert "--rows BC,GAIL,ILPO,IUPE --levels 1,2,3,4,5 --seeds 2 --iterations 40 --store" in gaps[0]
+    assert "--expert-episodes" not in gaps[0]  # all of each level's demonstrations is the default
     assert set(frame(at, "P (ours)")["method"]) == {"GAIL"}
     at.multiselect(key="resilience.methods").set_value(["BC"]).run()
     assert any("None of the chosen methods was trained with this budget" in i.value for i in at.info)

@@ -57,6 +57,9 @@ else:
     runs = len([r for r in results if not r["reference"]])
     st.caption(f"{runs} trainings from `assets/resilience/{env}.jsonl`; iterations per run: "
                f"{', '.join(map(str, iters)) or 'per-method defaults'}. Bars: one sd over seeds.")
+    gaps = ch7.missing_cells_text(shipped, env, methods)
+    if gaps:
+        st.info(gaps, icon=":material/info:")
 show_thesis = st.toggle("Show the thesis's lines (dotted)", key="resilience.thesis", **URL)
 thesis = ch7.thesis_curves(env, methods) if show_thesis else None
 left, right = st.columns(2)
@@ -91,7 +94,9 @@ level = c2.selectbox("Expert", list(ch7.LEVELS), format_func=ch7.expert_label, k
 seed = int(c3.number_input("Seed", min_value=0, max_value=1000, value=0, step=1, key="resilience.live.seed"))
 iterations = int(c4.number_input("Iterations", min_value=1, max_value=100, value=ch7.SHIPPED_SETTINGS["iterations"],
                                  step=1, key="resilience.live.iterations",
-                                 help="The shipped results used 5 iterations and 20 demonstrations per run."))
+                                 help=f"Every method's shipped results used {ch7.SHIPPED_SETTINGS['iterations']} "
+                                      f"iterations and {ch7.SHIPPED_SETTINGS['expert_episodes']} demonstrations "
+                                      "per run; some also ship with a longer budget (above)."))
 queue = get_queue()
 if st.button("Queue this cell", key="resilience.live.queue", type="primary"):
     method_name = dict(ch7.METHODS_7)[method]

@@ -21,6 +21,7 @@ episodes (it is far larger than the spread of their P over runs), so ours is too
 from __future__ import annotations
 
 import functools
+from collections import Counter
 import time
 from dataclasses import dataclass
 
@@ -338,6 +339,38 @@ def in_budget(results: list[dict], budget: tuple) -> list[dict]:
         elif _budget(r) == budget:
             out.append(r)
     return out
+
+
+def missing_cells(results: list[dict], methods=None) -> dict[str, list[int]]:
+    """The expert levels each of `methods` (labels; default every method) has no training for in `results`
+    (one budget's), so a page can say that a short line is a gap in the sweep, not a result."""
+    have: dict[str, set] = {}
+    for r in results:
+        if not r["reference"]:
+            have.setdefault(r["method"], set()).add(r["level"])
+    gaps = {m: [k for k in LEVELS if k not in have.get(m, ())] for m in (methods or LABELS_7)}
+    return {m: levels for m, levels in gaps.items() if levels}
+
+
+def missing_cells_text(results: list[dict], env: str, methods=None) -> str | None:
+    """'Not trained with this budget yet: ILPO on Expert³, Expert⁴, Expert⁵.' and the command that trains
+    them with the budget and seeds of the trainings beside them, and ships them to the page."""
+    gaps = missing_cells(results, methods)
+    trained = [r for r in results if not r["reference"]]
+    if not gaps or not trained:
+        return None
+    parts = [f"{m} on {'every expert' if len(levels) == len(LEVELS) else ', '.join(map(expert_label, levels))}"
+             for m, levels in gaps.items()]
+    iterations, episodes = _budget(trained[0])
+    seeds = max(Counter((r["method"], r["level"]) for r in trained).values())
+    levels = sorted({k for ks in gaps.values() for k in ks})
+    command = (f"python -m ifo bench resilience --envs {env} --rows {','.join(gaps)} "
+               f"--levels {','.join(map(str, levels))} --seeds {seeds}"
+               + (f" --iterations {iterations}" if iterations else "")
+               + (f" --expert-episodes {episodes}" if episodes else "")
+               + " --store runs/sweeps/ch7 --ship")
+    return (f"Not trained with this budget yet: {'; '.join(parts)}: their lines stop short or are absent. "
+            f"`{command}` trains them (on Ray) and ships them to this page.")
 
 
 def summary(results: list[dict], env: str) -> list[dict]:
