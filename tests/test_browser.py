@@ -181,7 +181,7 @@ VECTOR_ONLY = {"sail": "SAIL", "gail": "GAIL", "gaifo": "GAIfO", "ilpo": "ILPO"}
 @pytest.mark.parametrize("method_id", VECTOR_ONLY)
 def test_a_method_that_reads_state_vectors_names_the_maze_setting_it_needs(app, page, snap, method_id):
     """SAIL, GAIL, GAIfO and ILPO read state vectors: chosen on Maze 3×3 the page says so and names the
-    setting; the teacher opens More settings, chooses the vector observations, and the run Steps."""
+    setting; the teacher chooses the vector observations among the maze's options, and the run Steps."""
     method = VECTOR_ONLY[method_id]
     open_app(page, app, "step")
     choose(page, "Environment", "Maze 3x3")
@@ -189,8 +189,7 @@ def test_a_method_that_reads_state_vectors_names_the_maze_setting_it_needs(app, 
     refusal = error_boxes(page).filter(has_text=f"Could not start a run of {method} on Maze 3x3")
     expect(refusal).to_contain_text('the setting "Maze observations": vector')
     snap(page, "refused")
-    sidebar(page).get_by_text("More settings").click()
-    choose(page, "Maze observations", "vector")
+    choose(page, "Maze observations", "vector")  # beside the maze's other options, in sight
     expect(page.get_by_text(f"Current run: {method} on Maze 3x3, seed 0")).to_be_visible()
     expect(error_boxes(page)).to_have_count(0)
     _, total = iteration_shown(page)  # each method's own count on the maze (GAIL's rounds: 50)

@@ -34,6 +34,8 @@ FAST_OVERRIDES = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000
 MAIN_FIELDS = ("env", "method", "seed", "iterations")
 MAZE_FIELDS = MAZE_EVALUATION_FIELDS  # shown for mazes only
 MAZE_ONLY = MAZE_FIELDS + ("obs_mode", "image_size", "rollout_max_steps", "attention_probes")
+# drawn with the maze's options, not in "More settings": which methods a maze can run depends on it
+MAZE_UP_FRONT = ("obs_mode",)
 NOT_WIDGETS = ("demos",)  # chosen on the runs page (uploads), not typed in
 METHOD_FIELDS = ("labels", "single_pass")  # what makes BC or BCO: the method chooses them
 
@@ -275,7 +277,7 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches_show
                             help=f"{METHODS[method].title} is a single pass.")
             values["iterations"] = fixed
         if get_env(env).is_maze:
-            values.update(_maze_widgets(key, run_specs, b))
+            values.update(_maze_widgets(key, run_specs, defaults, b))
         if not switches_shown:
             st.caption("Changing the environment, method or seed starts a new run.")
             return Choice(values)
@@ -285,15 +287,20 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches_show
     return Choice(values)
 
 
-def _maze_widgets(key: str, run_specs: dict, b: dict) -> dict:
-    """Where a maze policy is judged: a generalisation test, or the thesis authors' protocol."""
+def _maze_widgets(key: str, run_specs: dict, defaults: dict, b: dict) -> dict:
+    """What the learner sees of a maze (images, or the vector that SAIL, GAIL, GAIfO and ILPO need), and
+    where a maze policy is judged: a generalisation test, or the thesis authors' protocol."""
+    # an advanced setting like those of "More settings": empty is the default, a run saves only differences
+    up_front = {name: _widget(run_specs[name], _k(key, name), defaults.get(name), b, optional=True)
+                for name in MAZE_UP_FRONT}
     layouts = _widget(run_specs["maze_eval_layouts"], _k(key, "maze_eval_layouts"), "held-out", b)
     if layouts == "held-out":
         st.caption("A test of generalisation: from 100 demonstrations a policy mostly learns its mazes, so "
                    "even BC (which sees the true actions) scores low here (5×5: P ≈ 0.26). The thesis's "
                    "numbers come from the demonstrations' layouts.")
     guard = _widget(run_specs["deadlock_guard"], _k(key, "deadlock_guard"), run_specs["deadlock_guard"].default, b)
-    return {"maze_eval_layouts": layouts, "deadlock_guard": bool(guard)}
+    return {**{name: v for name, v in up_front.items() if v is not None},
+            "maze_eval_layouts": layouts, "deadlock_guard": bool(guard)}
 
 
 def _switch_widgets(key: str, method: str, defaults: dict, run_specs: dict, b: dict) -> dict:
@@ -323,7 +330,7 @@ def _switch_widgets(key: str, method: str, defaults: dict, run_specs: dict, b: d
 def _more_settings(key: str, env: str, method: str, defaults: dict, b: dict) -> dict:
     """Sizes and rates, in an expander: an empty box keeps the method's or the environment's default."""
     maze = get_env(env).is_maze
-    chosen = [s for s in _all_specs(method) if s.advanced and s.name not in NOT_WIDGETS + METHOD_FIELDS
+    chosen = [s for s in _all_specs(method) if s.advanced and s.name not in NOT_WIDGETS + METHOD_FIELDS + MAZE_UP_FRONT
               and (maze or s.name not in MAZE_ONLY)]
     values = {}
     with st.expander("More settings"):
