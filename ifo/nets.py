@@ -14,6 +14,9 @@ Both start as the identity (gamma = 0), as in SAGAN.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+from contextvars import ContextVar
+
 import torch
 from torch import nn
 import torch.nn.functional as F
@@ -255,15 +258,41 @@ class ImageEncoder(nn.Module):
         return self.stage3.conv2
 
 
+_DROPOUT_MASKS: ContextVar[torch.Generator | None] = ContextVar("dropout_masks", default=None)
+
+
+@contextmanager
+def dropout_masks_from(generator: torch.Generator):
+    """Within it, every `Dropout` of this thread draws its masks from `generator` (a run's own)."""
+    token = _DROPOUT_MASKS.set(generator)
+    try:
+        yield
+    finally:
+        _DROPOUT_MASKS.reset(token)
+
+
+class Dropout(nn.Dropout):
+    """nn.Dropout whose masks come from the generator of `dropout_masks_from`, the training run's own, not
+    torch's process-wide one: two maze runs' steps (the app's sessions, in threads of one process) then
+    train at once and each keeps its numbers. The masks are nn.Dropout's from a generator in the same state
+    (torch's CPU dropout: bernoulli_(1 - p) divided by 1 - p); outside that context it is nn.Dropout."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        generator = _DROPOUT_MASKS.get()
+        if generator is None or not self.training or not 0 < self.p < 1:
+            return super().forward(x)
+        return x * torch.empty_like(x).bernoulli_(1 - self.p, generator=generator).div_(1 - self.p)
+
+
 def uses_dropout(module: nn.Module) -> bool:
-    """Whether training `module` draws random masks from torch's global generator (nn.Dropout, or an
-    RNN's dropout between its layers)."""
-    return any((isinstance(m, nn.modules.dropout._DropoutNd) and m.p > 0) or (isinstance(m, nn.RNNBase) and m.dropout > 0)
-               for m in module.modules())
+    """Whether training `module` draws random masks from torch's global generator (torch's nn.Dropout, or
+    an RNN's dropout between its layers; not our `Dropout`, whose masks come from the run's generator)."""
+    return any((isinstance(m, nn.modules.dropout._DropoutNd) and not isinstance(m, Dropout) and m.p > 0)
+               or (isinstance(m, nn.RNNBase) and m.dropout > 0) for m in module.modules())
 
 
 def _head(in_dim: int, n_actions: int, hidden: int = 128) -> nn.Module:
-    return nn.Sequential(nn.Linear(in_dim, hidden), nn.LeakyReLU(), nn.Dropout(0.5), nn.Linear(hidden, n_actions))
+    return nn.Sequential(nn.Linear(in_dim, hidden), nn.LeakyReLU(), Dropout(0.5), nn.Linear(hidden, n_actions))
 
 
 # ----------------------------------------------------------------------------- models

@@ -30,6 +30,7 @@ from ifo.io import load_module_arrays, module_arrays
 from ifo.iteration_cache import Entry, IterationCache, lineage_next, lineage_start, wait_or_compute
 from ifo.learners.base import Context, HiddenTruth, StepCancelled
 from ifo.methods import get_method
+from ifo.nets import dropout_masks_from
 from ifo.metrics import aer, performance, trajectory_fidelity
 from ifo.probes import policy_map_record
 from ifo.runtime import limit_threads
@@ -277,7 +278,8 @@ class Run:
         before = self.learner.state(), dict(self.learner.__dict__), self.last_evaluation
         self.ctx.seconds = seconds = {}
         try:
-            with GLOBAL_RNG if self.learner.draws_global_rng else nullcontext():
+            with GLOBAL_RNG if self.learner.draws_global_rng else nullcontext(), \
+                    dropout_masks_from(self.learner.dropout_masks):
                 sections = self.learner.step(i, rng)
             with self.ctx.phase(EVALUATE):
                 evaluation = self.evaluate(self.config.eval_explore, rng)

@@ -42,6 +42,7 @@ CASES = {
     "maze3-bco-alpha-vector": dict(env="maze3", method="bco-alpha", obs_mode="vector", expert_episodes=10),
     "maze3-abco-thesis": dict(env="maze3", method="abco", expert_episodes=10, maze_eval_layouts="demonstration",
                               deadlock_guard=True),
+    "maze3-cril": dict(env="maze3", method="cril", expert_episodes=10, seed=4),
 }
 
 

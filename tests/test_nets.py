@@ -1,4 +1,6 @@
 """Networks: attention modules start as the identity (gamma = 0), shapes, IDM weight sharing."""
+import contextlib
+
 import pytest
 import torch
 
@@ -197,3 +199,27 @@ def test_warming_up_training_draws_no_random_numbers():
     warm_up()
     assert torch.equal(torch.get_rng_state(), torch_state)
     assert (np.random.get_state()[1] == numpy_state).all()
+
+
+def test_the_runs_own_dropout_masks_are_torchs_from_a_generator_in_the_same_state():
+    """The image heads' Dropout draws from the run's generator (so two runs train at once): the same
+    outputs and gradients as nn.Dropout after torch.manual_seed of the same seed, and nn.Dropout outside."""
+    from ifo.nets import Dropout, dropout_masks_from, uses_dropout
+
+    x = torch.randn(64, 128)
+    ours, torchs = Dropout(0.5), torch.nn.Dropout(0.5)
+    generator = torch.Generator()
+    results = []
+    for module, masks in ((ours, dropout_masks_from(generator.manual_seed(7))), (torchs, contextlib.nullcontext())):
+        torch.manual_seed(7)
+        xi = x.clone().requires_grad_()
+        with masks:
+            y = module(xi)
+        (y * torch.arange(128.0)).sum().backward()
+        results.append((y.detach(), xi.grad))
+    assert torch.equal(results[0][0], results[1][0]) and torch.equal(results[0][1], results[1][1])
+    assert 0.3 < (results[0][0] == 0).float().mean() < 0.7  # it does drop
+    torch.manual_seed(7)
+    assert torch.equal(ours(x), results[1][0])  # no run's generator: torch's own dropout
+    assert torch.equal(ours.eval()(x), x)
+    assert not uses_dropout(Policy((32, 32, 3), 4)) and uses_dropout(torch.nn.Sequential(torch.nn.Dropout(0.5)))

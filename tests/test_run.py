@@ -417,10 +417,11 @@ def test_a_kept_i_pre_is_not_held_up_by_another_sessions_collection():
 
 
 def test_trainings_in_threads_of_one_process_give_the_numbers_they_give_alone(tiny_config):
-    """The app trains several sessions' iterations at once in threads of one process. Dropout (the maze's
-    image heads) and PPO (GAIfO) draw from torch's and numpy's process-wide generators: without the lock
-    the threads interleaved their draws and the same seed gave other numbers (shared with a class through
-    the iteration cache). CartPole's IUPE draws from neither and still runs beside them."""
+    """The app trains several sessions' iterations at once in threads of one process. PPO (GAIfO) draws from
+    torch's and numpy's process-wide generators: without the lock the threads interleaved their draws and the
+    same seed gave other numbers (shared with a class through the iteration cache). The maze's image heads
+    draw their dropout masks from their run's own generator, and CartPole's IUPE draws nothing: they run
+    beside it."""
     import threading
 
     configs = [tiny_config(env="maze3", method="iupe", expert_episodes=10, iterations=2),
@@ -444,4 +445,37 @@ def test_trainings_in_threads_of_one_process_give_the_numbers_they_give_alone(ti
         t.join()
     assert not errors
     assert [strip_timing(run.records) for run in runs] == alone
-    assert [run.learner.draws_global_rng for run in runs] == [True, True, True, False]
+    assert [run.learner.draws_global_rng for run in runs] == [False, True, False, False]
+
+
+def test_two_maze_trainings_run_at_once_and_give_the_numbers_they_give_alone(tiny_config):
+    """Dropout in the maze's image heads once made every maze step hold the process-wide lock, so a class's
+    second maze training waited for the first. Both steps now meet inside the learner at once (a barrier
+    that a lock would leave waiting), and each run's records are those it gives alone."""
+    import threading
+
+    configs = [tiny_config(env="maze3", method="iupe", expert_episodes=10, iterations=2),
+               tiny_config(env="maze3", method="cril", expert_episodes=10, iterations=2, seed=1)]
+    alone = [strip_timing(Run(c).run()) for c in configs]
+    runs = [Run(c) for c in configs]
+    both_inside = threading.Barrier(2, timeout=60)
+    for run in runs:
+        def step(iteration, rng, _step=run.learner.step):
+            both_inside.wait()  # BrokenBarrierError if the other step cannot start until this one ends
+            return _step(iteration, rng)
+        run.learner.step = step
+    errors = []
+
+    def train(run):
+        try:
+            run.run()
+        except Exception as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=train, args=(run,)) for run in runs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    assert [strip_timing(run.records) for run in runs] == alone

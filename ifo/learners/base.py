@@ -212,6 +212,7 @@ class Learner:
         self.ctx, self.config = ctx, config
         self.modules: dict[str, torch.nn.Module] = {}
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
+        self.dropout_masks = torch.Generator()  # ifo.nets.Dropout's masks while this learner's step runs
 
     # -- the round
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
@@ -244,6 +245,7 @@ class Learner:
         (the stream moves on either way: the same numbers whichever the answer). A learner that does not
         must not touch it: another thread's training may be drawing from it."""
         seed = int(rng.integers(2**31))
+        self.dropout_masks.manual_seed(seed)  # the masks torch.manual_seed(seed) gave them when they drew from it
         if self.draws_global_rng:
             torch.manual_seed(seed)
 
