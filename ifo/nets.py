@@ -263,7 +263,7 @@ _DROPOUT_MASKS: ContextVar[torch.Generator | None] = ContextVar("dropout_masks",
 
 @contextmanager
 def dropout_masks_from(generator: torch.Generator):
-    """Within it, every `Dropout` of this thread draws its masks from `generator` (a run's own)."""
+    """Within it, every `RunDropout` of this thread draws its masks from `generator` (a run's own)."""
     token = _DROPOUT_MASKS.set(generator)
     try:
         yield
@@ -271,7 +271,7 @@ def dropout_masks_from(generator: torch.Generator):
         _DROPOUT_MASKS.reset(token)
 
 
-class Dropout(nn.Dropout):
+class RunDropout(nn.Dropout):
     """nn.Dropout whose masks come from the generator of `dropout_masks_from`, the training run's own, not
     torch's process-wide one: two maze runs' steps (the app's sessions, in threads of one process) then
     train at once and each keeps its numbers. The masks are nn.Dropout's from a generator in the same state
@@ -286,13 +286,13 @@ class Dropout(nn.Dropout):
 
 def uses_dropout(module: nn.Module) -> bool:
     """Whether training `module` draws random masks from torch's global generator (torch's nn.Dropout, or
-    an RNN's dropout between its layers; not our `Dropout`, whose masks come from the run's generator)."""
-    return any((isinstance(m, nn.modules.dropout._DropoutNd) and not isinstance(m, Dropout) and m.p > 0)
+    an RNN's dropout between its layers; not `RunDropout`, whose masks come from the run's generator)."""
+    return any((isinstance(m, nn.modules.dropout._DropoutNd) and not isinstance(m, RunDropout) and m.p > 0)
                or (isinstance(m, nn.RNNBase) and m.dropout > 0) for m in module.modules())
 
 
 def _head(in_dim: int, n_actions: int, hidden: int = 128) -> nn.Module:
-    return nn.Sequential(nn.Linear(in_dim, hidden), nn.LeakyReLU(), Dropout(0.5), nn.Linear(hidden, n_actions))
+    return nn.Sequential(nn.Linear(in_dim, hidden), nn.LeakyReLU(), RunDropout(0.5), nn.Linear(hidden, n_actions))
 
 
 # ----------------------------------------------------------------------------- models

@@ -27,7 +27,7 @@ STREAMS = {"init": 1, "pre": 2, "iteration": 3, "evaluation": 4, "video": 5, "le
 EPISODE_STREAMS = {"pre": 1, "rollouts": 2, "learner": 3}  # environment seeds of the learner's own episodes
 EPISODE_RANGE = 2**48
 
-# Torch's default generator and numpy's global one are one per process, not per thread. Dropout and
+# Torch's default generator and numpy's global one are one per process, not per thread. torch's dropout and
 # PPO's sampling draw from them, so a learner that uses them seeds them (from its iteration's stream)
 # and holds this lock while it trains: two trainings in threads of one process (the app's sessions,
 # IFO_LAB_MAX_TRAININGS of them at once) would otherwise interleave their draws, and the same seed

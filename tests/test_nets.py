@@ -202,12 +202,12 @@ def test_warming_up_training_draws_no_random_numbers():
 
 
 def test_the_runs_own_dropout_masks_are_torchs_from_a_generator_in_the_same_state():
-    """The image heads' Dropout draws from the run's generator (so two runs train at once): the same
+    """The image heads' RunDropout draws from the run's generator (so two runs train at once): the same
     outputs and gradients as nn.Dropout after torch.manual_seed of the same seed, and nn.Dropout outside."""
-    from ifo.nets import Dropout, dropout_masks_from, uses_dropout
+    from ifo.nets import RunDropout, dropout_masks_from, uses_dropout
 
     x = torch.randn(64, 128)
-    ours, torchs = Dropout(0.5), torch.nn.Dropout(0.5)
+    ours, torchs = RunDropout(0.5), torch.nn.Dropout(0.5)
     generator = torch.Generator()
     results = []
     for module, masks in ((ours, dropout_masks_from(generator.manual_seed(7))), (torchs, contextlib.nullcontext())):

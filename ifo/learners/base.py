@@ -212,7 +212,7 @@ class Learner:
         self.ctx, self.config = ctx, config
         self.modules: dict[str, torch.nn.Module] = {}
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
-        self.dropout_masks = torch.Generator()  # ifo.nets.Dropout's masks while this learner's step runs
+        self.dropout_masks = torch.Generator()  # ifo.nets.RunDropout's masks while this learner's step runs
 
     # -- the round
     def step(self, iteration: int, rng: np.random.Generator) -> dict:
