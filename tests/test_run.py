@@ -416,26 +416,16 @@ def test_a_kept_i_pre_is_not_held_up_by_another_sessions_collection():
         slow.join(30)
 
 
-def test_trainings_in_threads_of_one_process_give_the_numbers_they_give_alone(tiny_config):
-    """The app trains several sessions' iterations at once in threads of one process. PPO (GAIfO) draws from
-    torch's and numpy's process-wide generators: without the lock the threads interleaved their draws and the
-    same seed gave other numbers (shared with a class through the iteration cache). The maze's image heads
-    draw their dropout masks from their run's own generator, and CartPole's IUPE draws nothing: they run
-    beside it."""
+def train_at_once(runs) -> list[Exception]:
+    """Trains each run in its own thread, all at once; returns what they raised."""
     import threading
 
-    configs = [tiny_config(env="maze3", method="iupe", expert_episodes=10, iterations=2),
-               tiny_config(method="gaifo", iterations=2),
-               tiny_config(env="maze3", method="bco-alpha", expert_episodes=10, iterations=2, seed=1),
-               tiny_config(method="iupe", iterations=3)]
-    alone = [strip_timing(Run(c).run()) for c in configs]
-    runs = [Run(c) for c in configs]
     errors = []
 
     def train(run):
         try:
             run.run()
-        except Exception as e:  # noqa: BLE001 - reported below
+        except Exception as e:  # noqa: BLE001 - reported by the caller
             errors.append(e)
 
     threads = [threading.Thread(target=train, args=(run,)) for run in runs]
@@ -443,6 +433,23 @@ def test_trainings_in_threads_of_one_process_give_the_numbers_they_give_alone(ti
         t.start()
     for t in threads:
         t.join()
+    return errors
+
+
+def test_trainings_in_threads_of_one_process_give_the_numbers_they_give_alone(tiny_config):
+    """The app trains several sessions' iterations at once in threads of one process. PPO (GAIfO) draws from
+    torch's and numpy's process-wide generators: without the lock the threads interleaved their draws and the
+    same seed gave other numbers (shared with a class through the iteration cache). The maze's image heads
+    draw their dropout masks from their run's own generator, and CartPole's IUPE draws nothing: they run
+    beside it."""
+
+    configs = [tiny_config(env="maze3", method="iupe", expert_episodes=10, iterations=2),
+               tiny_config(method="gaifo", iterations=2),
+               tiny_config(env="maze3", method="bco-alpha", expert_episodes=10, iterations=2, seed=1),
+               tiny_config(method="iupe", iterations=3)]
+    alone = [strip_timing(Run(c).run()) for c in configs]
+    runs = [Run(c) for c in configs]
+    errors = train_at_once(runs)
     assert not errors
     assert [strip_timing(run.records) for run in runs] == alone
     assert [run.learner.draws_global_rng for run in runs] == [False, True, False, False]
@@ -464,18 +471,6 @@ def test_two_maze_trainings_run_at_once_and_give_the_numbers_they_give_alone(tin
             both_inside.wait()  # BrokenBarrierError if the other step cannot start until this one ends
             return _step(iteration, rng)
         run.learner.step = step
-    errors = []
-
-    def train(run):
-        try:
-            run.run()
-        except Exception as e:  # noqa: BLE001 - reported below
-            errors.append(e)
-
-    threads = [threading.Thread(target=train, args=(run,)) for run in runs]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    errors = train_at_once(runs)
     assert not errors, errors
     assert [strip_timing(run.records) for run in runs] == alone
