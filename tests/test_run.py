@@ -442,7 +442,6 @@ def test_trainings_in_threads_of_one_process_give_the_numbers_they_give_alone(ti
     same seed gave other numbers (shared with a class through the iteration cache). The maze's image heads
     draw their dropout masks from their run's own generator, and CartPole's IUPE draws nothing: they run
     beside it."""
-
     configs = [tiny_config(env="maze3", method="iupe", expert_episodes=10, iterations=2),
                tiny_config(method="gaifo", iterations=2),
                tiny_config(env="maze3", method="bco-alpha", expert_episodes=10, iterations=2, seed=1),
