@@ -52,3 +52,38 @@ def test_policy_rollout_of_a_run_uses_the_gym_renderer(tiny_config):
     frames, ret = policy_rollout_frames(run, seed=0, max_frames=40)
     assert 2 <= len(frames) <= 40 and frames[0].shape == (400, 600, 3)
     assert ret == len(frames) - 1 or len(frames) == 40  # CartPole: +1 per step
+
+
+@pytest.mark.parametrize("env", ["cartpole", "maze5"])
+def test_sessions_drawing_their_first_frames_at_once_all_get_their_video(env):
+    """A class opening the rollout video at once on a fresh server draws the first frames in several threads;
+    a student once got "module 'pygame.surfarray' has no attribute 'pixels3d'" (a half-loaded lazy module)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[1])
+    script = f"""
+import threading
+import numpy as np
+from ifo.video import expert_rollout_frames
+start, videos, errors = threading.Barrier(8), {{}}, []
+def draw(k):
+    start.wait()
+    try:
+        videos[k] = expert_rollout_frames({env!r}, seed=k, max_frames=3)[0]
+    except Exception as e:
+        errors.append(repr(e))
+threads = [threading.Thread(target=draw, args=(k,)) for k in range(8)]
+for t in threads: t.start()
+for t in threads: t.join()
+assert not errors, errors
+for k, frames in videos.items():  # the frames one thread alone draws
+    assert all(np.array_equal(a, b) for a, b in zip(frames, expert_rollout_frames({env!r}, seed=k, max_frames=3)[0]))
+print(len(videos))
+"""
+    for _ in range(3):  # a fresh interpreter each time: the race is on the first frame only
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=root,
+                              env={**os.environ, "SDL_VIDEODRIVER": "dummy", "PYTHONPATH": root})
+        assert done.returncode == 0 and done.stdout.strip() == "8", done.stderr[-800:]

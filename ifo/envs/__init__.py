@@ -78,6 +78,8 @@ class EnvSpec:
 
     def make(self, **overrides: Any) -> gym.Env:
         kwargs = {**self.kwargs, **overrides}
+        if kwargs.get("render_mode") is not None:
+            import ifo.envs.drawing  # noqa: F401  (pygame ready for drawing from threads)
         if self.is_maze:
             from ifo.envs.maze import MazeEnv
 

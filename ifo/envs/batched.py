@@ -35,6 +35,8 @@ def _gym_env(gym_id: str, render_mode: str | None = None) -> gym.Env:
 
     Shared because `gym.make` costs ~0.2 ms and a stepper is made per `run_episodes` call.
     """
+    if render_mode is not None:
+        import ifo.envs.drawing  # noqa: F401  (pygame ready for drawing from threads)
     env = gym.make(gym_id, render_mode=render_mode).unwrapped
     env.reset(seed=0)  # so render() has a state before the first episode
     return env

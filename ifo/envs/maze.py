@@ -12,7 +12,6 @@ pools: "train" for demonstrations and learning, "eval" for measuring generalisat
 """
 from __future__ import annotations
 
-import os
 from collections import deque
 from functools import lru_cache
 from math import isqrt
@@ -20,11 +19,8 @@ from math import isqrt
 import gymnasium as gym
 import numpy as np
 
-os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # draw off-screen, never open a window
-os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-import pygame  # noqa: E402  (must come after the SDL setting)
-
-from ifo.runtime import BoundedCache  # noqa: E402
+from ifo.envs.drawing import pixels3d, pygame
+from ifo.runtime import BoundedCache
 
 # Actions; each leaves its cell through one side.
 N, S, W, E = 0, 1, 2, 3
@@ -334,7 +330,7 @@ def _frame(background, cell: int) -> np.ndarray:
     canvas = surface.copy()  # a fresh surface per frame: safe when threads render at once
     pygame.draw.circle(canvas, AGENT_COLOR, centres[cell], radius)
     # surfarray indexes (x, y); images are (row, column)
-    return np.ascontiguousarray(pygame.surfarray.pixels3d(canvas).transpose(1, 0, 2))
+    return np.ascontiguousarray(pixels3d(canvas).transpose(1, 0, 2))
 
 
 def render_maze(layout: np.ndarray, position: tuple[int, int], image_size: int = 64) -> np.ndarray:

@@ -1,0 +1,15 @@
+"""pygame, set up once for drawing off-screen from many threads (the maze's images, gymnasium's rgb_array frames).
+
+Import this module before anything draws: it chooses the headless video driver, and it loads pygame's surfarray
+now, in one thread. pygame loads surfarray lazily, and Python 3.11's lazy loading is not thread-safe: two sessions
+drawing their first frame at once saw it half-loaded ("module 'pygame.surfarray' has no attribute 'pixels3d'").
+"""
+
+import os
+
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # draw off-screen, never open a window
+os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+import pygame  # noqa: E402  (must come after the SDL setting)
+from pygame.surfarray import pixels3d  # noqa: E402  (loads the module, see above)
+
+__all__ = ["pygame", "pixels3d"]
