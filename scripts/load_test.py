@@ -135,6 +135,8 @@ class ProtocolSession:
         self.finished = False
         self.page_hash = ""  # the page's script hash once the server named it (a browser sends it back)
         self.fragment: tuple[float, str] | None = None  # (interval, id) of a fragment the server asks to rerun
+        self.said: list[str] = []  # the last texts and alerts the page drew (what a timeout reports)
+        self.messages = 0  # how many the server sent (a timeout reports it)
 
     @staticmethod
     async def connect(url: str, timeout: float):
@@ -171,6 +173,7 @@ class ProtocolSession:
 
         msg = ForwardMsg()
         msg.ParseFromString(await asyncio.wait_for(self.ws.recv(), timeout))
+        self.messages += 1
         kind = msg.WhichOneof("type")
         if kind == "page_info_changed":
             self.query = msg.page_info_changed.query_string  # ?user= and the settings, kept like a URL
@@ -188,6 +191,10 @@ class ProtocolSession:
             elif what == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
                 self.counter = int(m.group(1))
                 self.shown(self.counter)
+            elif what in ("alert", "exception", "markdown"):
+                body = getattr(element, what)
+                text = body.message if what == "exception" else body.body
+                self.said = (self.said + [f"{what}: {text.strip()[:120]}"])[-3:]
 
     def shown(self, iteration: int) -> None:
         """The counter shows `iteration` (a watching session notes when)."""
@@ -195,7 +202,12 @@ class ProtocolSession:
     async def until(self, done, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         while not done():
-            await self.receive(max(0.01, deadline - time.monotonic()))
+            try:
+                await self.receive(max(0.01, deadline - time.monotonic()))
+            except TimeoutError:  # say what the page showed instead, for the report
+                raise TimeoutError(f"after {timeout:.0f} s: {self.messages} messages, script "
+                                   f"{'finished' if self.finished else 'not finished'}, counter {self.counter}, "
+                                   f"buttons {sorted(self.buttons)[:6]}, last drawn {self.said}") from None
 
     async def step(self, timeout: float) -> None:
         want = (self.counter or 0) + 1
@@ -315,7 +327,7 @@ async def protocol_session(url: str, k: int, steps: int, step_timeout: float, re
             if ready is not None and i == lead:
                 ready.set()
     except Exception as e:  # noqa: BLE001 - a failed session is counted, not fatal
-        errors.append(f"session {k}, {where}: {type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''}")
+        errors.append(f"session {k}, {where}: {type(e).__name__}: {str(e).splitlines()[0][:600] if str(e) else ''}")
     finally:
         results[k] = (latencies, errors)
         if client is not None:
