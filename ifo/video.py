@@ -78,16 +78,18 @@ def _maze_episode(spec, act, seed: int, obs_mode: str, image_size: int, max_fram
 
 
 def _control_episode(spec, act, seed: int, max_frames: int) -> tuple[list[np.ndarray], float]:
+    from ifo.envs.drawing import render_frame
+
     env = spec.make(render_mode="rgb_array")
     try:
         obs, _ = env.reset(seed=int(seed))
-        frames = [env.render()]
+        frames = [render_frame(env)]
         ret, done = 0.0, False
         while not done and len(frames) < max_frames:
             obs, r, term, trunc, _ = env.step(int(act(obs)))
             ret += float(r)
             done = term or trunc
-            frames.append(env.render())
+            frames.append(render_frame(env))
         return frames, ret
     finally:
         env.close()

@@ -87,3 +87,33 @@ print(len(videos))
         done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=root,
                               env={**os.environ, "SDL_VIDEODRIVER": "dummy", "PYTHONPATH": root})
         assert done.returncode == 0 and done.stdout.strip() == "8", done.stderr[-800:]
+
+
+@pytest.mark.parametrize("env", ["cartpole", "acrobot", "mountaincar"])
+def test_videos_drawn_at_once_are_the_videos_drawn_alone(env):
+    """Students opening their rollout videos at the same moment each get their own episode, frame for frame as it
+    draws alone: gymnasium draws these with pygame.gfxdraw, whose polygon fill shares one buffer between threads
+    (CI once saw a CartPole frame drawn beside seven others differ from the same frame drawn alone)."""
+    import threading
+
+    n_threads, n_frames = 6, 60
+    alone = {k: expert_rollout_frames(env, seed=k, max_frames=n_frames)[0] for k in range(n_threads)}
+    start, together, errors = threading.Barrier(n_threads), {}, []
+
+    def draw(k):
+        start.wait()
+        try:
+            together[k] = expert_rollout_frames(env, seed=k, max_frames=n_frames)[0]
+        except Exception as e:  # noqa: BLE001  (reported below)
+            errors.append(repr(e))
+
+    threads = [threading.Thread(target=draw, args=(k,)) for k in range(n_threads)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    for k in range(n_threads):
+        assert len(together[k]) == len(alone[k])
+        smudged = [i for i, (a, b) in enumerate(zip(together[k], alone[k])) if not np.array_equal(a, b)]
+        assert not smudged, f"seed {k}: frames {smudged[:10]} differ when drawn beside other sessions"

@@ -35,8 +35,6 @@ def _gym_env(gym_id: str, render_mode: str | None = None) -> gym.Env:
 
     Shared because `gym.make` costs ~0.2 ms and a stepper is made per `run_episodes` call.
     """
-    if render_mode is not None:
-        import ifo.envs.drawing  # noqa: F401  (pygame ready for drawing from threads)
     env = gym.make(gym_id, render_mode=render_mode).unwrapped
     env.reset(seed=0)  # so render() has a state before the first episode
     return env
@@ -90,10 +88,12 @@ class _BatchedStepper:
         return self._obs(state), rewards, terminated, truncated, self._no_infos[:len(idx)]
 
     def render(self, i: int) -> np.ndarray:
+        from ifo.envs.drawing import render_frame  # pygame ready for drawing from threads
+
         with _SHARED_ENV_LOCK:
             env = _gym_env(self.gym_id, "rgb_array")
             env.state = self.state[i].copy()
-            return env.render()
+            return render_frame(env)
 
     def _dynamics(self, state: np.ndarray, actions: np.ndarray):
         raise NotImplementedError

@@ -6,10 +6,21 @@ drawing their first frame at once saw it half-loaded ("module 'pygame.surfarray'
 """
 
 import os
+import threading
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # draw off-screen, never open a window
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import pygame  # noqa: E402  (must come after the SDL setting)
 from pygame.surfarray import pixels3d  # noqa: E402  (loads the module, see above)
 
-__all__ = ["pygame", "pixels3d"]
+__all__ = ["pygame", "pixels3d", "render_frame"]
+
+# gymnasium's CartPole, Acrobot and MountainCar draw with pygame.gfxdraw.filled_polygon, which lets go of the GIL
+# and fills through one static buffer inside SDL_gfx: two sessions drawing at once smudged each other's frames.
+_DRAW_LOCK = threading.Lock()
+
+
+def render_frame(env):
+    """`env.render()`, one environment at a time in this process (see _DRAW_LOCK)."""
+    with _DRAW_LOCK:
+        return env.render()

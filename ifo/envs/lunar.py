@@ -59,7 +59,9 @@ class LunarLanderStepper:
         return obs, rewards, terminated, truncated, [{}] * n
 
     def render(self, i: int) -> np.ndarray:
-        return self.envs[i].render()
+        from ifo.envs.drawing import render_frame
+
+        return render_frame(self.envs[i])
 
 
 def _step(env, action: int):

@@ -91,7 +91,9 @@ class GymStepper:
         return obs, rewards, terminated, truncated, [o[4] for o in out]
 
     def render(self, i: int) -> np.ndarray:
-        return self.envs[i].render()
+        from ifo.envs.drawing import render_frame
+
+        return render_frame(self.envs[i])
 
 
 class EnvPool:
