@@ -127,6 +127,7 @@ class ProtocolSession:
 
     COUNTER = re.compile(r"^#### Iteration (\d+) of \d+$")
     PAGE = "step"
+    RETRY = "Try again"  # the button views/step_through.py draws when a run could not start
 
     def __init__(self, ws, query: str):
         self.ws, self.query = ws, query
@@ -137,6 +138,7 @@ class ProtocolSession:
         self.fragment: tuple[float, str] | None = None  # (interval, id) of a fragment the server asks to rerun
         self.said: list[str] = []  # the last texts and alerts the page drew (what a timeout reports)
         self.messages = 0  # how many the server sent (a timeout reports it)
+        self.gave_up = False  # this script run drew the page that could not start a run ("Try again")
 
     @staticmethod
     async def connect(url: str, timeout: float):
@@ -164,7 +166,7 @@ class ProtocolSession:
             widget.id, widget.trigger_value = trigger, True
         if fragment:  # a fragment's timer, or a click on a widget drawn in a fragment: that fragment only
             msg.rerun_script.fragment_id, msg.rerun_script.is_auto_rerun = fragment, timer
-        self.finished = False
+        self.finished = self.gave_up = False
         await self.ws.send(msg.SerializeToString())
 
     async def receive(self, timeout: float | None = None) -> None:
@@ -188,6 +190,7 @@ class ProtocolSession:
             what = element.WhichOneof("type")
             if what == "button":
                 self.buttons[element.button.label] = (element.button.id, msg.delta.fragment_id)
+                self.gave_up |= element.button.label == self.RETRY
             elif what == "markdown" and (m := self.COUNTER.match(element.markdown.body.strip())):
                 self.counter = int(m.group(1))
                 self.shown(self.counter)
@@ -202,6 +205,8 @@ class ProtocolSession:
     async def until(self, done, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         while not done():
+            if self.finished and self.gave_up:  # the page will not change by itself: say so now, not at the timeout
+                raise RuntimeError(f"the page could not start the run: last drawn {self.said}")
             try:
                 await self.receive(max(0.01, deadline - time.monotonic()))
             except TimeoutError:  # say what the page showed instead, for the report

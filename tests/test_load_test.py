@@ -56,3 +56,36 @@ def test_a_step_redraws_the_run_not_the_whole_page(tmp_path):
 
     with serve_app(tmp_path / "server.log", {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(tmp_path / "runs")}) as url:
         asyncio.run(journey(url))
+
+
+def test_a_session_whose_run_could_not_start_says_so_at_once():
+    """The benchmark reports a student whose page could not start a run (the app's "Try again" page) when the page
+    is drawn, with what it said, instead of waiting out the whole Step timeout."""
+    import asyncio
+
+    import pytest
+    from streamlit.proto.ForwardMsg_pb2 import ForwardMsg
+
+    sys.path.insert(0, str(ROOT))
+    from scripts.load_test import ProtocolSession
+
+    alert, retry, finished = ForwardMsg(), ForwardMsg(), ForwardMsg()
+    alert.delta.new_element.alert.body = "Could not start a run of IUPE on Maze 5x5, seed 101"
+    retry.delta.new_element.button.label, retry.delta.new_element.button.id = "Try again", "retry"
+    finished.script_finished = ForwardMsg.FINISHED_SUCCESSFULLY
+
+    class Server:  # sends the error page, then nothing more (as the app does)
+        def __init__(self):
+            self.sent = [m.SerializeToString() for m in (alert, retry, finished)]
+
+        async def recv(self):
+            if self.sent:
+                return self.sent.pop(0)
+            await asyncio.sleep(3600)
+
+    async def step():
+        session = ProtocolSession(Server(), "")
+        await asyncio.wait_for(session.until(lambda: session.counter == 1, timeout=600), timeout=10)
+
+    with pytest.raises(RuntimeError, match="could not start the run.*Could not start a run of IUPE"):
+        asyncio.run(step())
