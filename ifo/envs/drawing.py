@@ -9,6 +9,7 @@ import os
 import threading
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # draw off-screen, never open a window
+os.environ.setdefault("SDL_AUDIODRIVER", "dummy")  # gymnasium calls pygame.init(): no ALSA errors in logs
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 import pygame  # noqa: E402  (must come after the SDL setting)
 from pygame.surfarray import pixels3d  # noqa: E402  (loads the module, see above)
