@@ -78,7 +78,7 @@ def _maze_episode(spec, act, seed: int, obs_mode: str, image_size: int, max_fram
 
 
 def _control_episode(spec, act, seed: int, max_frames: int) -> tuple[list[np.ndarray], float]:
-    from ifo.envs.drawing import render_frame
+    from ifo.envs.drawing import close_env, render_frame
 
     env = spec.make(render_mode="rgb_array")
     try:
@@ -92,7 +92,7 @@ def _control_episode(spec, act, seed: int, max_frames: int) -> tuple[list[np.nda
             frames.append(render_frame(env))
         return frames, ret
     finally:
-        env.close()
+        close_env(env)
 
 
 def policy_rollout_frames(run, seed: int = 0, max_frames: int | None = None, size: int = MAZE_VIDEO_SIZE,

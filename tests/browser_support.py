@@ -52,7 +52,9 @@ class App:
 
 
 # ----------------------------------------------------------------------------- fixtures
-@pytest.fixture(scope="session")
+# Module-scoped, not session-scoped: Playwright's sync API keeps its event loop marked running in this thread
+# until it stops, and a later test file in the same worker calling asyncio.run() would fail ("never awaited").
+@pytest.fixture(scope="module")
 def app(tmp_path_factory, browser) -> App:
     if not CHROMIUM.exists():
         pytest.skip("Debian's chromium (/usr/bin/chromium) is not installed")
@@ -73,7 +75,7 @@ def app(tmp_path_factory, browser) -> App:
             shutil.copyfile(log, ARTIFACTS / "server.log")
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser():
     if not CHROMIUM.exists():
         pytest.skip("Debian's chromium (/usr/bin/chromium) is not installed")
