@@ -219,13 +219,17 @@ def cmd_bench(a: argparse.Namespace) -> int:
                                 rows=[r.strip() for r in a.rows.split(",")] if a.rows else None,
                                 ship=a.ship, figures_dir=a.figures, **extra, **_sweep_options(a))
     elif a.what == "seeds":
-        from ifo.sweep import ResultStore, seeds_table
+        from ifo.sweep import ResultStore, StoreError, seeds_table
 
         if not a.store:
-            raise CliError("bench seeds needs --store DIR (a results store of reproduce or resilience)")
-        if not Path(a.store).is_dir():
-            raise CliError(f"--store: no results store at {a.store}")
-        text = seeds_table(ResultStore(a.store).done().values())
+            raise CliError("bench seeds needs --store DIR (a results store of reproduce or resilience, or a "
+                           "results file such as assets/resilience/cartpole.jsonl)")
+        if not Path(a.store).exists():
+            raise CliError(f"--store: no results store or file at {a.store}")
+        try:
+            text = seeds_table(ResultStore.at(a.store).done().values())
+        except StoreError as exc:  # over the size limit: say so, read nothing
+            raise CliError(f"--store: {exc}") from exc
     elif a.what == "sweep":
         from ifo.bench import sweep_table
 
@@ -360,7 +364,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")
     p.add_argument("--store", metavar="DIR",
                    help="reproduce/resilience: keep every finished training in DIR (JSON lines); a rerun skips "
-                        "the ones already there (default: a temporary folder, nothing resumed)")
+                        "the ones already there (default: a temporary folder, nothing resumed); seeds: the store "
+                        "DIR, or a results file such as assets/resilience/cartpole.jsonl, to list")
     p.add_argument("--address", help="reproduce/resilience: a Ray cluster (ray://HOST:10001); default RAY_ADDRESS, "
                                      "else a local Ray on 2 CPUs")
     p.add_argument("--local", action="store_true",

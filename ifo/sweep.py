@@ -126,6 +126,16 @@ class ResultStore:
         self.dir = Path(directory)
         self.path = self.dir / STORE_FILE
 
+    @classmethod
+    def at(cls, path: str | os.PathLike) -> "ResultStore":
+        """The store in folder `path`, or the results file `path` itself (a shipped assets/resilience/*.jsonl)."""
+        path = Path(path)
+        if path.is_dir():
+            return cls(path)
+        store = cls(path.parent)
+        store.path = path
+        return store
+
     def _lock(self):
         from filelock import FileLock
 
@@ -182,11 +192,7 @@ class ResultStore:
 
 def read_rows(path: str | os.PathLike) -> list[dict]:
     """Rows of a results file or store folder (the shipped assets/resilience/*.jsonl are such files)."""
-    path = Path(path)
-    store = ResultStore(path) if path.is_dir() else ResultStore(path.parent)
-    if not path.is_dir():
-        store.path = path
-    return store.rows()
+    return ResultStore.at(path).rows()
 
 
 # ----------------------------------------------------------------------------- running one task

@@ -127,6 +127,9 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, m
                      "| 6.2 | BCO(α) | maze10 | 40 | 0 | -0.087 | -1.087 | 151 | 0123456 | lab-7 |"]
     assert main(["bench", "seeds", "--store", str(tmp_path / "nowhere")]) == 2
     assert "no results store" in capsys.readouterr().err
+    # a results file lists the same (the shipped assets/resilience/*.jsonl, checkable on a fresh clone)
+    assert main(["bench", "seeds", "--store", str(store.path)]) == 0
+    assert [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 6.2")] == lines
     assert main(["bench", "seeds"]) == 2
     assert "needs --store" in capsys.readouterr().err
     import torch
@@ -180,3 +183,18 @@ def test_train_refuses_to_overwrite_a_run_before_training(tmp_path):
     a_file.write_text("x")
     res = run_cli("train", "--env", "cartpole", "--method", "bco", "--quiet", "--out", str(a_file / "run"), *FAST)
     assert res.returncode == 2 and "iteration" not in res.stdout and "Traceback" not in res.stderr
+
+
+def test_bench_seeds_lists_the_seeds_behind_a_shipped_resilience_cell(capsys):
+    """REPRODUCTION.md's Chapter 7 numbers are checkable on a fresh clone: the shipped results file lists each
+    seed of a 10-seed cell (ILPO on LunarLander with Expert⁵, 40 rounds), and their mean is the one documented."""
+    import re
+
+    from ifo.cli import main
+    from ifo.reproduce.chapter7 import shipped_results_path
+
+    assert main(["bench", "seeds", "--store", str(shipped_results_path("lunarlander"))]) == 0
+    cell = [line.split(" | ") for line in capsys.readouterr().out.splitlines()
+            if re.match(r"\| 7\.6 \| ILPO \| lunarlander \| 40 \|", line)]
+    assert sorted(int(c[4]) for c in cell) == list(range(10))
+    assert round(sum(float(c[6]) for c in cell) / len(cell), 1) == -66.5
