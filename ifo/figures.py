@@ -761,6 +761,8 @@ def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", 
         raise ValueError(f"metric must be one of {', '.join(RESILIENCE_METRICS)}, got {metric!r}")
     import numpy as np
 
+    from ifo.metrics import sample_sd
+
     # the axis says what the metric means; the title stays short enough for half a page
     title = f"{RESILIENCE_METRICS[metric].split(' (')[0]} against the expert's AER ({env})"
     mine = [r for r in results if r.get("env") == env and r.get("expert_aer") is not None]
@@ -780,7 +782,7 @@ def resilience_curves(results: Sequence[dict], env: str, theme: str = "screen", 
             if r["method"] == method and r.get(metric) is not None and np.isfinite(r[metric]):
                 by_level.setdefault(int(r["level"]), []).append(r)
         points = sorted((float(np.mean([r["expert_aer"] for r in rs])), float(np.mean([r[metric] for r in rs])),
-                         float(np.std([r[metric] for r in rs])), level, len(rs)) for level, rs in by_level.items())
+                         sample_sd([r[metric] for r in rs]), level, len(rs)) for level, rs in by_level.items())
         if not points:
             continue
         color = COLORS[(palette.index(method) + 1) % len(COLORS)]

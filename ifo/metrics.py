@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 
 def aer(returns) -> float:
@@ -11,6 +10,12 @@ def aer(returns) -> float:
     if returns.size == 0:
         raise ValueError("AER needs at least one episode")
     return float(returns.mean())
+
+
+def sample_sd(values) -> float:
+    """The spread over seeds (or runs) that every table, page and figure shows: the sample sd (n − 1), 0 for one."""
+    values = np.asarray(values, dtype=np.float64)
+    return float(values.std(ddof=1)) if values.size > 1 else 0.0
 
 
 def performance(returns, random_return, expert_return) -> float:
@@ -32,6 +37,8 @@ def performance(returns, random_return, expert_return) -> float:
 def _features(states: np.ndarray) -> np.ndarray:
     x = np.asarray(states)
     if x.ndim == 4:  # images: average-pool to 8x8 so the measure looks at layout, not pixels
+        import torch
+
         n, h, w, c = x.shape
         t = torch.as_tensor(x, dtype=torch.float32).permute(0, 3, 1, 2) / 255.0
         x = torch.nn.functional.adaptive_avg_pool2d(t, 8).flatten(1).numpy()
@@ -49,6 +56,8 @@ def trajectory_fidelity(learner_states: np.ndarray, expert_states: np.ndarray, m
     """
     if len(learner_states) == 0 or len(expert_states) == 0:
         return float("nan")
+    import torch  # here, not above: figures read `sample_sd` without loading torch
+
     rng = np.random.default_rng(seed)
     a, b = _features(learner_states), _features(expert_states)
     if len(a) > max_points:

@@ -384,7 +384,7 @@ def test_resilience_curves_draw_one_line_per_method_against_the_experts_aer():
     bc = fig.data[1]
     assert list(bc.x) == [110.0, 350.0, 500.0]  # sorted by the expert's AER
     assert list(bc.y) == pytest.approx([105.0, 345.0, 495.0])  # mean over seeds
-    assert list(bc.error_y.array) == pytest.approx([5.0, 5.0, 5.0])  # one sd
+    assert list(bc.error_y.array) == pytest.approx([50 ** 0.5] * 3)  # one sample sd (n − 1), as the tables
     assert list(fig.data[0].x) == list(fig.data[0].y) == [110.0, 350.0, 500.0]
     assert any(a.text == "random" for a in fig.layout.annotations)
     assert "cartpole" in fig.layout.title.text

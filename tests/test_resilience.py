@@ -443,3 +443,25 @@ def test_a_cell_ships_only_with_every_seed_its_tables_show(tmp_path):
     assert ch7.ship_results(rows, tmp_path, seeds=2) == {"cartpole": 10}
     shipped = {json.loads(line)["key"] for line in (tmp_path / "cartpole.jsonl").read_text().splitlines()}
     assert "IUPE40" not in shipped and {"BC40", "BC41", "r4", "e4", "IUPE10", "IUPE11"} <= shipped
+
+
+@pytest.mark.parametrize("env", ["cartpole", "lunarlander"])
+def test_the_page_and_the_tables_give_each_cell_the_same_spread_over_seeds(env):
+    """A teacher reads '± sd' on the page, on its figure's bars and in docs/REPRODUCTION.md's tables: for
+    the same shipped trainings it is the same number everywhere (the sample sd over seeds, n − 1)."""
+    from ifo import figures
+    from ifo.reproduce import mean_sd
+
+    results = ch7.in_budget(ch7.load_shipped_results(env), (40, None))
+    summary = {(s["method"], s["level"]): s for s in ch7.summary(results, env)}
+    fig = figures.resilience_curves(results, env)
+    for method in ch7.LABELS_7:
+        trace = next(t for t in fig.data if t.name == method)
+        for level in ch7.LEVELS:
+            seeds = [r for r in results if r["method"] == method and r["level"] == level]
+            assert len(seeds) == 10  # every cell of the 40-round budget shipped with its ten seeds
+            table = mean_sd([r["aer"] for r in seeds])  # as the tables print it
+            mean, sd = summary[(method, level)]["aer"]
+            assert f"{mean:.3f} ± {sd:.3f}" == table
+            bar = trace.error_y.array[[c[0] for c in trace.customdata].index(f"Expert level {level}")]
+            assert f"{bar:.3f}" == table.split(" ± ")[1]

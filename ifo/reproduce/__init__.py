@@ -34,6 +34,7 @@ import numpy as np
 
 from ifo.config import RunConfig
 from ifo.envs import get_env
+from ifo.metrics import sample_sd
 from ifo.run import Run
 
 @dataclass(frozen=True)
@@ -119,11 +120,7 @@ def mean_sd(values: list) -> str:
         return "—"
     if len(values) == 1:
         return f"{values[0]:.3f}"
-    return f"{np.mean(values):.3f} ± {_sample_sd(values):.3f}"
-
-
-def _sample_sd(values) -> float:
-    return float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
+    return f"{np.mean(values):.3f} ± {sample_sd(values):.3f}"
 
 
 def interval95(values: list) -> tuple[float, float] | None:
@@ -134,7 +131,7 @@ def interval95(values: list) -> tuple[float, float] | None:
     values = [v for v in values if v is not None]
     if len(values) < 2:
         return None
-    mean, sd = float(np.mean(values)), _sample_sd(values)
+    mean, sd = float(np.mean(values)), sample_sd(values)
     half = float(stats.t.ppf(0.975, len(values) - 1)) * sd / np.sqrt(len(values))
     return mean - half, mean + half
 
@@ -167,8 +164,8 @@ def summarise(values: list, how: str = "mean_sd", fmt: str = ".3f") -> str:
         return "—"
     if how == "mean_sd":
         return (format(values[0], fmt) if len(values) == 1
-                else f"{format(float(np.mean(values)), fmt)} ± {format(float(np.std(values, ddof=1)), fmt)}")
-    return format(float({"min": np.min, "max": np.max, "sd": _sample_sd}[how](values)), fmt)
+                else f"{format(float(np.mean(values)), fmt)} ± {format(sample_sd(values), fmt)}")
+    return format(float({"min": np.min, "max": np.max, "sd": sample_sd}[how](values)), fmt)
 
 
 def thesis_cell(theirs: tuple, where, fmt: str = ".3f") -> str:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ifo.metrics import sample_sd
 from ifo.reproduce import Column, Row, Table, register
 from ifo.runtime import BoundedCache, file_stamp
 
@@ -383,7 +384,7 @@ def summary(results: list[dict], env: str) -> list[dict]:
     for (method, level), rs in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])):
         def stat(key):
             vals = [x[key] for x in rs if x.get(key) is not None and np.isfinite(x[key])]
-            return (float(np.mean(vals)), float(np.std(vals))) if vals else (None, None)
+            return (float(np.mean(vals)), sample_sd(vals)) if vals else (None, None)
 
         out.append({"method": method, "level": level, "runs": len(rs), "expert_aer": stat("expert_aer")[0],
                     **{k: stat(k) for k in ("aer", "performance", "performance_expert1", "fidelity")}})
