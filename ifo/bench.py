@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from ifo.config import RunConfig
-from ifo.metrics import sample_sd
 from ifo.envs import get_env
+from ifo.metrics import sample_sd
 from ifo.methods import METHODS
 from ifo.reproduce import mean_sd
 from ifo.run import Run

@@ -173,7 +173,7 @@ class ResultStore:
                     row = json.loads(raw)
                 except ValueError:  # torn last line
                     continue
-                if isinstance(row, dict) and "key" in row:
+                if _well_formed(row):
                     out.append(row)
         return out
 
@@ -188,6 +188,16 @@ class ResultStore:
     def done(self) -> dict[str, dict]:
         """key -> row of every finished training."""
         return {k: r for k, r in self.latest().items() if r.get("status") == DONE}
+
+
+def _well_formed(row) -> bool:
+    """A row as a sweep writes it: a text key; spec, result, machine and driver objects where present; a
+    whole-number seed. Anything else (a hand-edited or hostile file) is skipped, as a torn line is."""
+    if not (isinstance(row, dict) and isinstance(row.get("key"), str)
+            and all(row.get(k) is None or isinstance(row[k], dict) for k in ("spec", "result", "machine", "driver"))):
+        return False
+    seed = (row.get("spec") or {}).get("seed", 0)
+    return isinstance(seed, int) and not isinstance(seed, bool)
 
 
 def read_rows(path: str | os.PathLike) -> list[dict]:
@@ -377,7 +387,7 @@ def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = N
 def _where(row: dict) -> str:
     """The machine that trained a row (its worker's; rows before workers reported it: the driver's)."""
     where = row.get("machine") or row.get("driver") or {}
-    return where.get("hostname", "?") + (f" ({where['cpu_capability']})" if where.get("cpu_capability") else "")
+    return f"{where.get('hostname', '?')}" + (f" ({where['cpu_capability']})" if where.get("cpu_capability") else "")
 
 
 def seeds_table(done: Iterable[dict]) -> str:
@@ -386,8 +396,11 @@ def seeds_table(done: Iterable[dict]) -> str:
     done = list(done)
     if not done:
         return "No finished training in this store."
-    def cell_of(r: dict) -> tuple:
-        return r["spec"].get("table"), r["spec"].get("row"), r["spec"].get("env")
+    def spec_of(r: dict) -> dict:
+        return r.get("spec") or {}
+
+    def cell_of(r: dict) -> tuple:  # as text: a hand-edited file's values need not be hashable
+        return tuple(str(spec_of(r).get(k)) for k in ("table", "row", "env"))
 
     order: dict = {}  # cells in the order their first seed finished, then by seed
     for r in done:
@@ -398,8 +411,8 @@ def seeds_table(done: Iterable[dict]) -> str:
 
     lines = ["| table | row | environment | iterations | seed | P | AER | seconds | commit | machine |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(done, key=lambda r: (order[cell_of(r)], r["spec"].get("seed", 0))):
-        spec, result = r["spec"], r.get("result", {})
+    for r in sorted(done, key=lambda r: (order[cell_of(r)], spec_of(r).get("seed", 0))):
+        spec, result = spec_of(r), r.get("result") or {}
         lines.append(f"| {spec.get('table', '—')} | {spec.get('row', '—')} | {spec.get('env', '—')} | "
                      f"{spec.get('iterations') or 'default'} | {spec.get('seed', '—')} | "
                      f"{cell(result.get('performance'), '{:.3f}')} | {cell(result.get('aer'), '{:.3f}')} | "

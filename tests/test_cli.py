@@ -132,6 +132,19 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, m
     assert [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 6.2")] == lines
     assert main(["bench", "seeds"]) == 2
     assert "needs --store" in capsys.readouterr().err
+    # a hand-edited or hostile file: rows not shaped as a sweep writes them are skipped, the good row listed
+    hostile = tmp_path / "hostile.jsonl"
+    hostile.write_text('{"key": "a", "status": "done", "spec": [1]}\n{"key": "b", "status": "done", "result": 5}\n'
+                       '{"key": 3, "status": "done", "spec": {}}\n'
+                       '{"key": "f", "status": "done", "spec": {"seed": 2, "table": [7], "row": {"x": 1}}}\n'
+                       '{"key": "c", "status": "done", "spec": {"seed": "zero"}}\n'
+                       '{"key": "d", "status": "done", "spec": {"seed": 1}, "result": [2]}\n'
+                       '{"key": "e", "status": "done", "spec": {"seed": 1}, "machine": {"hostname": 7}}\n'
+                       '[1, 2]\n' + store.path.read_text().splitlines()[-1] + "\n")
+    assert main(["bench", "seeds", "--store", str(hostile)]) == 0
+    out = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ")][1:]  # under the header
+    assert out == ["| [7] | {'x': 1} | — | default | 2 | — | — | — | ? | ? |",
+                   "| — | — | — | default | 1 | — | — | — | ? | 7 |", lines[2]]
     import torch
 
     from ifo.sweep import execute

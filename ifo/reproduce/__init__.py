@@ -113,14 +113,14 @@ def run_row(row: Row, env: str, seed: int, iterations: int | None, **extra) -> d
     return out
 
 
-def mean_sd(values: list) -> str:
+def mean_sd(values: list, fmt: str = ".3f") -> str:
     """'mean ± sd' over seeds for a table cell (the sample sd, n − 1); one value as is; '—' when there is none."""
     values = [v for v in values if v is not None]
     if not values:
         return "—"
     if len(values) == 1:
-        return f"{values[0]:.3f}"
-    return f"{np.mean(values):.3f} ± {sample_sd(values):.3f}"
+        return format(values[0], fmt)
+    return f"{format(float(np.mean(values)), fmt)} ± {format(sample_sd(values), fmt)}"
 
 
 def interval95(values: list) -> tuple[float, float] | None:
@@ -163,8 +163,7 @@ def summarise(values: list, how: str = "mean_sd", fmt: str = ".3f") -> str:
     if not values:
         return "—"
     if how == "mean_sd":
-        return (format(values[0], fmt) if len(values) == 1
-                else f"{format(float(np.mean(values)), fmt)} ± {format(sample_sd(values), fmt)}")
+        return mean_sd(values, fmt)
     return format(float({"min": np.min, "max": np.max, "sd": sample_sd}[how](values)), fmt)
 
 
