@@ -362,10 +362,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--iterations", type=int, help="iterations for the iterative methods (default: per env)")
     p.add_argument("--quick", action="store_true", help="small settings, for a smoke test")
-    p.add_argument("--store", metavar="DIR",
-                   help="reproduce/resilience: keep every finished training in DIR (JSON lines); a rerun skips "
-                        "the ones already there (default: a temporary folder, nothing resumed); seeds: the store "
-                        "DIR, or a results file such as assets/resilience/cartpole.jsonl, to list")
+    p.add_argument("--store", metavar="DIR|FILE.jsonl",
+                   help="reproduce/resilience: keep every finished training in DIR, or in one results file "
+                        "FILE.jsonl (JSON lines); a rerun skips the ones already there, so a complete store "
+                        "renders its table without training (default: a temporary folder, nothing resumed); "
+                        "seeds: the store to list (a folder, or a file such as assets/resilience/cartpole.jsonl)")
     p.add_argument("--address", help="reproduce/resilience: a Ray cluster (ray://HOST:10001); default RAY_ADDRESS, "
                                      "else a local Ray on 2 CPUs")
     p.add_argument("--local", action="store_true",

@@ -125,22 +125,25 @@ class ResultStore:
     def __init__(self, directory: str | os.PathLike):
         self.dir = Path(directory)
         self.path = self.dir / STORE_FILE
+        self.lock_path = self.dir / LOCK_FILE
 
     @classmethod
     def at(cls, path: str | os.PathLike) -> "ResultStore":
-        """The store in folder `path`, or the results file `path` itself (a shipped assets/resilience/*.jsonl)."""
+        """The store in folder `path`, or the results file `path` itself (a shipped assets/resilience/*.jsonl,
+        docs/reproduction/*.jsonl): a path that is a file, or is not there yet and ends in .jsonl."""
         path = Path(path)
-        if path.is_dir():
+        if path.is_dir() or (not path.exists() and path.suffix != ".jsonl"):
             return cls(path)
         store = cls(path.parent)
         store.path = path
+        store.lock_path = path.with_name(f".{path.name}.lock")  # its own: two files of one folder are two stores
         return store
 
     def _lock(self):
         from filelock import FileLock
 
         self.dir.mkdir(parents=True, exist_ok=True)
-        return FileLock(str(self.dir / LOCK_FILE), timeout=60)
+        return FileLock(str(self.lock_path), timeout=60)
 
     def append(self, row: dict) -> None:
         line = json.dumps(_jsonable(row), separators=(",", ":"), allow_nan=True)

@@ -72,3 +72,42 @@ def test_a_thesis_cell_that_is_a_fill_in_is_marked_and_explained(monkeypatch):
     assert "| -167.000 (note 1) |" in row
     assert "- Note 1: ILPO's MountainCar AER −167 is a fill-in" in text
     assert "| -100.000 ± 0.000 | [-100.000, -100.000] |" in row
+
+
+def shipped_table_commands() -> list[tuple[str, str]]:
+    """The documented tables whose results file ships in the repository (--store FILE.jsonl)."""
+    out = []
+    for where, command in documented_commands():
+        argv = shlex.split(command)[3:]
+        if "--store" in argv and argv[:2] == ["bench", "reproduce"]:
+            store = ROOT / argv[argv.index("--store") + 1]
+            if store.suffix == ".jsonl" and store.is_file():
+                out.append((where, command))
+    return out
+
+
+def test_some_tables_ship_the_results_they_were_made_from():
+    assert len(shipped_table_commands()) >= 2
+
+
+@pytest.mark.parametrize("where,command", shipped_table_commands(), ids=lambda v: v if ".md" in v else None)
+def test_a_table_with_its_results_file_is_what_its_command_prints_from_that_file(where, command, tmp_path,
+                                                                                  monkeypatch):
+    """On a fresh clone the documented command, with the shipped results file, trains nothing and prints the
+    documented table: every number of it comes from the seeds the file lists (`bench seeds --store FILE`)."""
+    from ifo import sweep
+    from ifo.cli import main
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("the shipped results file lacks a training of this table")
+
+    monkeypatch.setattr(sweep, "execute", no_training)
+    argv = shlex.split(command)[3:]
+    shipped = ROOT / argv[argv.index("--store") + 1]
+    copy, out = tmp_path / shipped.name, tmp_path / "table.md"
+    copy.write_bytes(shipped.read_bytes())
+    argv[argv.index("--store") + 1], argv[argv.index("--out") + 1] = str(copy), str(out)
+    assert main(argv + ["--local"]) == 0
+    assert copy.read_bytes() == shipped.read_bytes(), "the command trained or appended rows"
+    body = lambda text: [line for line in text.splitlines() if not MADE_WITH.search(line)]  # noqa: E731
+    assert body(out.read_text(encoding="utf-8")) == body((ROOT / where).read_text(encoding="utf-8"))

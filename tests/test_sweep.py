@@ -182,6 +182,25 @@ def test_reproduce_renders_its_table_from_the_store_and_resumes_from_it(tmp_path
     assert "failed" not in only_bc and "| BC | cartpole |" in only_bc
 
 
+def test_a_table_kept_in_one_results_file_renders_again_from_a_copy_of_it(tmp_path):
+    """docs/reproduction ships a table's results file beside it: the documented command, run on a fresh
+    clone with --store that file, renders the table without training anything."""
+    kept = tmp_path / "work" / "table-6.1.jsonl"
+    kw = dict(log=lambda m: None, progress=False, **TINY)
+    first = reproduce("6.1", seeds=2, envs=["cartpole"], iterations=1, rows=["BC"], store=str(kept), **kw)
+    assert len(kept.read_text().splitlines()) == 2 and (kept.parent / ".table-6.1.jsonl.lock").exists()
+    assert [p.name for p in kept.parent.iterdir() if not p.name.startswith(".")] == ["table-6.1.jsonl"]
+    shipped = tmp_path / "clone" / "table-6.1.jsonl"
+    shipped.parent.mkdir()
+    shipped.write_bytes(kept.read_bytes())
+    again = reproduce("6.1", seeds=2, envs=["cartpole"], iterations=1, rows=["BC"], store=str(shipped), **kw)
+    assert shipped.read_bytes() == kept.read_bytes()  # nothing trained, nothing appended
+    strip = lambda text: [line.rsplit("|", 3)[0] for line in text.splitlines()]  # noqa: E731 - seconds aside
+    assert strip(first) == strip(again) and "| BC | cartpole |" in again
+    # a folder that is not there yet stays a folder store, whatever its name
+    assert ResultStore.at(tmp_path / "new-store").path == tmp_path / "new-store" / "results.jsonl"
+
+
 def test_the_command_line_passes_the_sweep_options(monkeypatch, capsys, tmp_path):
     import ifo.reproduce as reproduce_mod
     from ifo.cli import main

@@ -263,7 +263,7 @@ def train_rows(table: Table, chosen: list[Row], env_names: list[str], seeds: int
             f"AER {r.get('aer')} ({r.get('seconds', 0.0):.0f} s)")
 
     scratch = tempfile.TemporaryDirectory(prefix="ifo-sweep-") if store is None else None
-    results_store = ResultStore(store if store is not None else scratch.name)
+    results_store = ResultStore.at(store if store is not None else scratch.name)
     try:
         if train:
             done, report = run_sweep(list(tasks.values()), results_store, address=address,
