@@ -501,13 +501,14 @@ def resilience_study(envs=None, seeds: int = 3, iterations: int | None = None, l
                   for env in env_names for seed in range(row_seeds(row, seeds))]
     scratch = tempfile.TemporaryDirectory(prefix="ifo-ch7-") if store is None else None
     where = store if store is not None else scratch.name
+    results = ResultStore.at(where)
     try:
         def on_row(task, stored) -> None:
             r, spec = stored["result"], task.spec
             log(f"[{spec['table']}] {spec['row']} on {spec['env']}, seed {spec['seed']}: AER {r.get('aer')} "
                 f"P {r.get('performance')} fidelity {r.get('fidelity')} ({r.get('seconds', 0.0):.0f} s)")
 
-        _, report = run_sweep(tasks, ResultStore.at(where), address=address, local=not (ray or address), on_row=on_row,
+        _, report = run_sweep(tasks, results, address=address, local=not (ray or address), on_row=on_row,
                               desc="Chapter 7", progress=progress)
         texts = [reproduce(RESULTS_TABLES[level], seeds, env_names, iterations,
                            rows=[r.label for r in TABLES[RESULTS_TABLES[level]].rows
@@ -515,10 +516,10 @@ def resilience_study(envs=None, seeds: int = 3, iterations: int | None = None, l
                            log=lambda m: None, store=where, train=False, **extra)
                  for level in levels]
         if figures_dir is not None:
-            paths = write_figures(results_from_rows(ResultStore.at(where).rows()), env_names, figures_dir, log)
+            paths = write_figures(results_from_rows(results.rows()), env_names, figures_dir, log)
             log(f"wrote {', '.join(map(str, paths))}")
         if ship:
-            written = ship_results(ResultStore.at(where).rows(), ASSETS / "resilience", env_names, seeds)
+            written = ship_results(results.rows(), ASSETS / "resilience", env_names, seeds)
             log(f"shipped {', '.join(f'{n} rows for {e}' for e, n in written.items())} to {ASSETS / 'resilience'}")
     finally:
         if scratch is not None:
