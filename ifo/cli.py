@@ -202,8 +202,9 @@ def cmd_bench(a: argparse.Namespace) -> int:
             extra["deadlock_guard"] = a.deadlock_guard
         if a.expert_episodes:
             extra["expert_episodes"] = a.expert_episodes
-        rows = [r.strip() for r in a.rows.split(",")] if a.rows else None
-        from ifo.reproduce import sweep_defaults
+        from ifo.reproduce import row_labels, sweep_defaults
+
+        rows = row_labels(a.rows) if a.rows else None
 
         try:
             with sweep_defaults(**_sweep_options(a)):  # on Ray unless --local; --store to resume
@@ -211,12 +212,13 @@ def cmd_bench(a: argparse.Namespace) -> int:
         except RuntimeError as exc:  # every training failed: say why in one line
             raise CliError(str(exc)) from exc
     elif a.what == "resilience":
+        from ifo.reproduce import row_labels
         from ifo.reproduce.chapter7 import resilience_study
 
         extra = {"expert_episodes": a.expert_episodes} if a.expert_episodes else {}
         levels = [int(v) for v in a.levels.split(",")] if a.levels else None
         text = resilience_study(a.envs.split(",") if a.envs else None, a.seeds, a.iterations, levels=levels,
-                                rows=[r.strip() for r in a.rows.split(",")] if a.rows else None,
+                                rows=row_labels(a.rows) if a.rows else None,
                                 ship=a.ship, figures_dir=a.figures, **extra, **_sweep_options(a))
     elif a.what == "seeds":
         from ifo.sweep import ResultStore, StoreError, seeds_table

@@ -87,6 +87,25 @@ def test_bench_reproduce_passes_the_maze_protocol_to_every_run(monkeypatch, caps
     assert "the demonstrations' maze layouts" in out and "deadlock guard" in out and "1000 demonstrations" in out
 
 
+def test_bench_reproduce_rows_may_name_a_row_whose_label_has_a_comma(monkeypatch, capsys):
+    """Table 6.1's "BCO(α), appending I_s (Torabi et al.)" holds a comma: --rows still selects it alone."""
+    import ifo.reproduce as reproduce_mod
+    from ifo.cli import main
+
+    real_reproduce, seen = reproduce_mod.reproduce, {}
+
+    def fake_reproduce(table_id, seeds, envs, iterations, rows=None, **extra):
+        seen["rows"] = rows
+        return "(table)"
+
+    monkeypatch.setattr(reproduce_mod, "reproduce", fake_reproduce)
+    assert main(["bench", "reproduce", "--table", "6.1", "--envs", "maze3", "--seeds", "1", "--local",
+                 "--rows", "IUPE,BCO(α), appending I_s (Torabi et al.),BCO(α)"]) == 0
+    assert seen["rows"] == ["IUPE", "BCO(α), appending I_s (Torabi et al.)", "BCO(α)"]
+    with pytest.raises(ValueError, match="has no row appending"):  # a label's tail alone is no row
+        real_reproduce("6.1", 1, ["maze3"], rows=reproduce_mod.row_labels("BCO(α), appending"))
+
+
 def test_bench_speed_times_only_the_environments_asked_for(monkeypatch, capsys):
     import ifo.bench as bench_mod
     from ifo.cli import main

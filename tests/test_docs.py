@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from ifo.cli import build_parser
-from ifo.reproduce import TABLES, interval95, reproduce, verdict
+from ifo.reproduce import TABLES, interval95, reproduce, row_labels, verdict
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
@@ -49,7 +49,7 @@ def test_a_documented_command_still_parses_and_names_what_exists(where, command)
     for env in (args.envs.split(",") if getattr(args, "envs", None) else []):
         assert env in table.envs, f"{where}: table {table_id} has no column {env}"
     labels = {r.label for r in table.rows}
-    for row in ([r.strip() for r in args.rows.split(",")] if getattr(args, "rows", None) else []):
+    for row in (row_labels(args.rows) if getattr(args, "rows", None) else []):
         assert row in labels, f"{where}: table {table_id} has no row {row}"
 
 

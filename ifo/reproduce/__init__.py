@@ -287,6 +287,18 @@ def train_rows(table: Table, chosen: list[Row], env_names: list[str], seeds: int
     return results, sum(task.key not in done for task in tasks.values())
 
 
+def row_labels(text: str) -> list[str]:
+    """A --rows value as row labels. Split at commas, except inside a label that has one
+    ("BCO(α), appending I_s (Torabi et al.)"): the longest known label wins at each place."""
+    known = {row.label for table in TABLES.values() for row in table.rows}
+    parts, labels, i = [p.strip() for p in text.split(",")], [], 0
+    while i < len(parts):
+        end = next((j for j in range(len(parts), i, -1) if ", ".join(parts[i:j]) in known), i + 1)
+        labels.append(", ".join(parts[i:end]))
+        i = end
+    return labels
+
+
 def reproduce(table_id: str, seeds: int = 3, envs: list[str] | None = None, iterations: int | None = None,
               log=lambda m: print(m, file=sys.stderr, flush=True), rows: list[str] | None = None, **extra) -> str:
     sweep = {**_SWEEP_DEFAULTS, **{k: extra.pop(k) for k in SWEEP_OPTIONS if k in extra}}
