@@ -393,9 +393,13 @@ def _where(row: dict) -> str:
     return f"{where.get('hostname', '?')}" + (f" ({where['cpu_capability']})" if where.get("cpu_capability") else "")
 
 
+LAST_ITERATIONS = 10  # bench seeds: P over this many last iterations tells a last-iteration dip from a failure
+
+
 def seeds_table(done: Iterable[dict]) -> str:
     """Finished trainings (`ResultStore.done()`), one line per seed (a table's mean ± sd hides which seed
-    failed): P and AER at the last iteration, the seconds it took, the commit and machine that trained it."""
+    failed): P and AER at the last iteration, P over the last iterations and its best (from the training's
+    curve, where the store kept one), the seconds it took, the commit and machine that trained it."""
     done = list(done)
     if not done:
         return "No finished training in this store."
@@ -412,13 +416,25 @@ def seeds_table(done: Iterable[dict]) -> str:
     def cell(value, pattern: str) -> str:
         return "—" if not isinstance(value, (int, float)) or math.isnan(value) else pattern.format(value)
 
-    lines = ["| table | row | environment | iterations | seed | P | AER | seconds | commit | machine |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    def along_the_curve(result: dict) -> str:  # a dip at the last iteration, or never learned?
+        curve = result.get("curve") if isinstance(result.get("curve"), list) else []
+        points = [(p["performance"], p.get("iteration")) for p in curve if isinstance(p, dict)
+                  and isinstance(p.get("performance"), (int, float)) and math.isfinite(p["performance"])]
+        if not points:
+            return "— | —"
+        last = [p for p, _ in points[-LAST_ITERATIONS:]]
+        best, when = max(points, key=lambda point: point[0])
+        return f"{sum(last) / len(last):.3f} | {best:.3f} ({when})"
+
+    lines = [f"| table | row | environment | iterations | seed | P | AER | P, mean of the last {LAST_ITERATIONS} "
+             "iterations | best P (iteration) | seconds | commit | machine |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(done, key=lambda r: (order[cell_of(r)], spec_of(r).get("seed", 0))):
         spec, result = spec_of(r), r.get("result") or {}
         lines.append(f"| {spec.get('table', '—')} | {spec.get('row', '—')} | {spec.get('env', '—')} | "
                      f"{spec.get('iterations') or 'default'} | {spec.get('seed', '—')} | "
                      f"{cell(result.get('performance'), '{:.3f}')} | {cell(result.get('aer'), '{:.3f}')} | "
+                     f"{along_the_curve(result)} | "
                      f"{cell(result.get('seconds'), '{:.0f}')} | {str(r.get('commit') or '?')[:7]} | "
                      f"{_where(r)} |")
     return "\n".join(lines)

@@ -134,6 +134,9 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, m
             del out["machine"]
         if status == "done":
             out["result"] = {"performance": performance, "aer": performance - 1, "seconds": 151.4}
+        if name == "IUPE" and seed == 0:  # learned at iteration 2, dipped at the last: the curve tells
+            out["result"]["curve"] = [{"iteration": i + 1, "performance": p}
+                                      for i, p in enumerate([-0.1, 1.0] + [0.9] * 10 + [performance])]
         return out
 
     for r in (row("IUPE", 1, performance=0.25), row("BCO(α)", 0, "failed"), row("IUPE", 0, performance=0.5),
@@ -141,9 +144,9 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, m
         store.append(r)
     assert main(["bench", "seeds", "--store", str(store.dir)]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 6.2")]
-    assert lines == ["| 6.2 | IUPE | maze10 | 40 | 0 | 0.500 | -0.500 | 151 | 0123456 | node-2 (AVX512) |",
-                     "| 6.2 | IUPE | maze10 | 40 | 1 | 0.250 | -0.750 | 151 | 0123456 | node-2 (AVX512) |",
-                     "| 6.2 | BCO(α) | maze10 | 40 | 0 | -0.087 | -1.087 | 151 | 0123456 | lab-7 |"]
+    assert lines == ["| 6.2 | IUPE | maze10 | 40 | 0 | 0.500 | -0.500 | 0.860 | 1.000 (2) | 151 | 0123456 | node-2 (AVX512) |",
+                     "| 6.2 | IUPE | maze10 | 40 | 1 | 0.250 | -0.750 | — | — | 151 | 0123456 | node-2 (AVX512) |",
+                     "| 6.2 | BCO(α) | maze10 | 40 | 0 | -0.087 | -1.087 | — | — | 151 | 0123456 | lab-7 |"]
     assert main(["bench", "seeds", "--store", str(tmp_path / "nowhere")]) == 2
     assert "no results store" in capsys.readouterr().err
     # a results file lists the same (the shipped assets/resilience/*.jsonl, checkable on a fresh clone)
@@ -159,11 +162,14 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, m
                        '{"key": "c", "status": "done", "spec": {"seed": "zero"}}\n'
                        '{"key": "d", "status": "done", "spec": {"seed": 1}, "result": [2]}\n'
                        '{"key": "e", "status": "done", "spec": {"seed": 1}, "machine": {"hostname": 7}}\n'
+                       '{"key": "g", "status": "done", "spec": {"seed": 3}, "result": {"curve": [1, {"performance": '
+                       '"x"}, {"performance": NaN}]}}\n'
                        '[1, 2]\n' + store.path.read_text().splitlines()[-1] + "\n")
     assert main(["bench", "seeds", "--store", str(hostile)]) == 0
     out = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ")][1:]  # under the header
-    assert out == ["| [7] | {'x': 1} | — | default | 2 | — | — | — | ? | ? |",
-                   "| — | — | — | default | 1 | — | — | — | ? | 7 |", lines[2]]
+    assert out == ["| [7] | {'x': 1} | — | default | 2 | — | — | — | — | — | ? | ? |",
+                   "| — | — | — | default | 1 | — | — | — | — | — | ? | 7 |",
+                   "| — | — | — | default | 3 | — | — | — | — | — | ? | ? |", lines[2]]
     import torch
 
     from ifo.sweep import execute
