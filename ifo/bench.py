@@ -113,6 +113,112 @@ def step_floor(steps: int = 400) -> dict[str, float]:
     return out
 
 
+def image_step_ms(obs_shape: tuple[int, ...], n_actions: int, attention: str = "self", batch: int = 128,
+                  steps: int = 10) -> dict[str, float]:
+    """Milliseconds for one training step (fused Adam, batch 128) of the maze's image policy and IDM, the
+    convolutions an iteration's fits are made of: best of three runs of `steps` steps."""
+    import torch
+    import torch.nn.functional as F
+
+    from ifo.components.learning import make_optimizer
+    from ifo.nets import InverseDynamics, Policy
+
+    generator = torch.Generator().manual_seed(0)
+    images = torch.randint(0, 256, (batch, *obs_shape), dtype=torch.uint8, generator=generator)
+    labels = torch.randint(0, n_actions, (batch,), generator=generator)
+    out = {}
+    for role, model, inputs in (("policy", Policy(obs_shape, n_actions, attention=attention), (images,)),
+                                ("idm", InverseDynamics(obs_shape, n_actions, attention=attention), (images, images))):
+        opt = make_optimizer(model, 1e-3)
+
+        def step() -> None:
+            loss = F.cross_entropy(model(*inputs), labels)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+
+        step()  # the first step builds Adam's state
+        best = np.inf
+        for _ in range(3):
+            start = time.perf_counter()
+            for _ in range(steps):
+                step()
+            best = min(best, (time.perf_counter() - start) / steps * 1000)
+        out[role] = best
+    return out
+
+
+def fit_steps(record: dict, learner_config) -> dict[str, int]:
+    """How many mini-batch steps an iteration's fits made: the IDM's passes over I_s (its record's
+    train_size) and the policy's over T_e, as `ifo.components.learning.fit` cuts them."""
+    def batches(n: int) -> int:
+        full, rest = divmod(n, learner_config.batch_size)
+        return full + (rest >= 2 or (rest == 1 and n == 1))  # fit skips a last batch of one sample
+
+    return {"idm": learner_config.idm_epochs * batches(record.get("idm", {}).get("train_size", 0)),
+            "policy": learner_config.policy_epochs * batches(record["samples"]["expert_samples"])}
+
+
+def box2d_step_us(run: Run) -> float:
+    """Microseconds of one Box2D world step in the episodes `run`'s policy flies (gymnasium's solver
+    iterations; a step costs most with the legs on the ground): one evaluation of the policy under cProfile,
+    reading only the time spent inside Box2D's `b2World_Step`."""
+    import cProfile
+    import pstats
+
+    profiler = cProfile.Profile()
+    profiler.enable()
+    run.evaluate()
+    profiler.disable()
+    calls, seconds = 0, 0.0
+    for (_file, _line, name), (_, ncalls, tottime, _, _) in pstats.Stats(profiler).stats.items():
+        if "b2World_Step" in name:
+            calls, seconds = calls + ncalls, seconds + tottime
+    return seconds / calls * 1e6 if calls else float("nan")
+
+
+def environment_steps(records: list[dict], eval_episodes: int) -> dict[str, float]:
+    """Environment steps of the last iteration: the learner's own runs (the growth of its step count) and
+    the evaluation (its episodes' mean length times their number)."""
+    last = records[-1]
+    before = records[-2]["samples"]["environment_steps"] if len(records) > 1 else None
+    own = last["samples"]["environment_steps"] - before if before is not None else float("nan")
+    return {"rollout": own, "evaluate": last["evaluation"]["mean_length"] * eval_episodes}
+
+
+def arithmetic_floors(rows: list[tuple]) -> list[str]:
+    """Lines saying how much of the last iteration is arithmetic that no overhead removal can take away:
+    for image mazes, the fits' convolutions at this machine's speed for a training step; for LunarLander,
+    Box2D's world steps."""
+    lines, step_ms, box2d_us = [], {}, None
+    for env, method, _setup, records, run in rows:
+        spec, cfg = get_env(env), run.config
+        image_fits = (len(run.ctx.obs_shape) == 3 and "train_size" in records[-1].get("idm", {})
+                      and hasattr(cfg.learner, "policy_epochs"))  # the BCO family's IDM and policy on images
+        if image_fits:
+            key = (run.ctx.obs_shape, spec.n_actions, cfg.learner.attention)
+            if key not in step_ms:
+                step_ms[key] = image_step_ms(*key)
+            ms, counts = step_ms[key], fit_steps(records[-1], cfg.learner)
+            floor = sum(counts[role] * ms[role] for role in counts) / 1000
+            spent = sum(records[-1]["seconds"].get(role, 0.0) for role in counts)
+            lines.append(f"{env} {method}: the last iteration's fits made {counts['idm']} IDM and "
+                         f"{counts['policy']} policy steps at batch {cfg.learner.batch_size}; one step takes "
+                         f"{ms['idm']:.0f} / {ms['policy']:.0f} ms here (`ifo.bench.image_step_ms`), so "
+                         f"{floor:.2f} s of convolutions, against {spent:.2f} s in its idm and policy phases.")
+        elif spec.name == "lunarlander":
+            box2d_us = box2d_us or box2d_step_us(run)
+            steps = environment_steps(records, cfg.eval_episodes)
+            total = steps["rollout"] + steps["evaluate"]
+            spent = sum(records[-1]["seconds"].get(p, 0.0) for p in ("rollout", "evaluate"))
+            lines.append(f"{env} {method}: the last iteration stepped {total:,.0f} environment steps (its runs "
+                         f"{steps['rollout']:,.0f}, evaluation {steps['evaluate']:,.0f}); Box2D's world step "
+                         f"alone takes {box2d_us:.1f} µs in the policy's episodes (`ifo.bench.box2d_step_us`), so "
+                         f"{total * box2d_us / 1e6:.2f} s of simulation, against {spent:.2f} s in its rollout "
+                         "and evaluate phases.")
+    return lines
+
+
 def speed_table(cases=SPEED_CASES, iterations: int = 5, log=lambda msg: print(msg, file=sys.stderr),
                 baseline: Path | None = SPEED_BASELINE, save_baseline: Path | None = None) -> str:
     """Seconds per iteration and per phase (median over iterations) for the interactive settings, with the
@@ -127,12 +233,12 @@ def speed_table(cases=SPEED_CASES, iterations: int = 5, log=lambda msg: print(ms
         setup = time.perf_counter() - start
         run.run()
         phases += [p for p in run.phases() if p not in phases]
-        rows.append((env, method, setup, run.records))
+        rows.append((env, method, setup, run.records, run))
         log(f"{env} {method}: {np.median([r['seconds']['total'] for r in run.records]):.2f} s/iteration")
     lines = ["| environment | method | setup s | s/iteration (median) | × baseline | " + " | ".join(phases) + " |",
              "|" + "---|" * (5 + len(phases))]
     now = {}
-    for env, method, setup, records in rows:
+    for env, method, setup, records, _run in rows:
         med = lambda key: float(np.median([r["seconds"].get(key, 0.0) for r in records]))  # noqa: E731
         now[f"{env}/{method}"] = round(med("total"), 3)
         ratio = f"{med('total') / before[f'{env}/{method}']:.2f}" if before.get(f"{env}/{method}") else "—"
@@ -146,6 +252,10 @@ def speed_table(cases=SPEED_CASES, iterations: int = 5, log=lambda msg: print(ms
               "training step of a 4-32-32-2 MLP at batch 128 (an iteration makes hundreds): plain MLP "
               f"{floor['none/autograd']:.2f} ms with autograd and optimizer.step(), {floor['none/by hand']:.2f} ms as "
               f"`fit` trains it; IUPE's gated MLP {floor['gated/autograd']:.2f} ms and {floor['gated/by hand']:.2f} ms."]
+    floors = arithmetic_floors(rows)
+    if floors:
+        lines += ["", "Arithmetic floors of the last iteration (what removing overhead cannot take away):", ""]
+        lines += [f"- {line}" for line in floors]
     if save_baseline:
         Path(save_baseline).write_text(json.dumps(now, indent=1, sort_keys=True) + "\n")
     return "\n".join(lines)

@@ -118,6 +118,74 @@ def test_bench_speed_times_only_the_environments_asked_for(monkeypatch, capsys):
     assert "no speed case for 'atlantis'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("n", [1, 2, 127, 128, 129, 130, 256, 257])
+def test_bench_counts_the_training_steps_fit_really_makes(n):
+    """The maze floor multiplies a training step's time by `fit_steps`: it must count the mini-batches `fit`
+    trains (a last batch of one sample is skipped unless it is the only sample)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import torch
+
+    from ifo.bench import fit_steps
+    from ifo.components.learning import fit, make_optimizer
+
+    module, calls = torch.nn.Linear(3, 2), []
+
+    def forward(x):
+        calls.append(len(x))
+        return module(x)
+
+    epochs = 2
+    fit(forward, module, make_optimizer(module, 1e-3), [np.zeros((n, 3), np.float32)], np.zeros(n, np.int64),
+        epochs, 128, torch.Generator().manual_seed(0))
+    config = SimpleNamespace(batch_size=128, idm_epochs=epochs, policy_epochs=1)
+    record = {"idm": {"train_size": n}, "samples": {"expert_samples": n}}
+    assert fit_steps(record, config) == {"idm": len(calls), "policy": len(calls) // epochs}
+
+
+def test_bench_speed_states_the_arithmetic_floor_of_a_maze_iteration():
+    """The line bench speed prints under its table for an image maze: the fits' steps from the run's records,
+    and a training step's time measured here."""
+    import re
+
+    from ifo.bench import arithmetic_floors
+    from ifo.config import RunConfig
+    from ifo.run import Run
+
+    run = Run(RunConfig.from_dict(dict(env="maze3", method="iupe", iterations=1, pre_size=300, policy_epochs=2,
+                                       episodes_per_iteration=4, eval_episodes=4, expert_episodes=10)))
+    run.run()
+    [line] = arithmetic_floors([("maze3", "iupe", 0.0, run.records, run)])
+    made = re.search(r"made (\d+) IDM and (\d+) policy steps at batch 128; one step takes (\d+) / (\d+) ms", line)
+    expert, train_size = run.records[-1]["samples"]["expert_samples"], run.records[-1]["idm"]["train_size"]
+    batches = lambda n: n // 128 + (n % 128 >= 2)  # noqa: E731  (a last batch of one sample is skipped)
+    assert int(made[1]) == batches(train_size) and int(made[2]) == 2 * batches(expert)
+    assert int(made[3]) > 0 and int(made[4]) > 0 and " s of convolutions, against " in line
+
+
+def test_bench_speed_states_the_simulation_floor_of_a_lunarlander_iteration():
+    """For LunarLander the floor is Box2D: the last iteration's environment steps (its own runs and the
+    evaluation, from the records) times a world step's time in the policy's episodes."""
+    import math
+    import re
+
+    from ifo.bench import arithmetic_floors, box2d_step_us
+    from ifo.config import RunConfig
+    from ifo.run import Run
+
+    run = Run(RunConfig.from_dict(dict(env="lunarlander", method="iupe", iterations=2, pre_size=300,
+                                       policy_epochs=1, episodes_per_iteration=2, eval_episodes=2,
+                                       expert_episodes=2)))
+    run.run()
+    [line] = arithmetic_floors([("lunarlander", "iupe", 0.0, run.records, run)])
+    steps = re.search(r"stepped ([\d,]+) environment steps \(its runs ([\d,]+), evaluation ([\d,]+)\)", line)
+    own = run.records[1]["samples"]["environment_steps"] - run.records[0]["samples"]["environment_steps"]
+    evaluation = run.records[1]["evaluation"]["mean_length"] * 2
+    assert [int(g.replace(",", "")) for g in steps.groups()] == [round(own + evaluation), own, round(evaluation)]
+    assert math.isfinite(box2d_step_us(run)) and box2d_step_us(run) > 0
+
+
 def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, monkeypatch):
     """A table's mean ± sd hides which seed failed: `bench seeds` prints one line per finished training,
     rows in the order they first finished, seeds in order; a failure later retried shows its success only."""
