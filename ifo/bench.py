@@ -14,7 +14,6 @@ import numpy as np
 
 from ifo.config import RunConfig
 from ifo.envs import get_env
-from ifo.metrics import sample_sd
 from ifo.methods import METHODS
 from ifo.reproduce import mean_sd
 from ifo.run import Run
@@ -55,7 +54,7 @@ def bench_table(envs: list[str], seeds: int = 3, iterations: int | None = None, 
                f"{spec.expert_return:.2f}" if spec.expert_return is not None else "n/a"]
         row += [mean_sd([r["performance"] for r in results[m]]) for m in BASELINE_METHODS]
         row += [f"{np.mean([r['seconds_per_iteration'] for r in alpha]):.2f}",
-                f"{np.mean([r['aer'] for r in alpha]):.2f} ± {sample_sd([r['aer'] for r in alpha]):.2f}"]
+                mean_sd([r["aer"] for r in alpha], ".2f")]
         lines.append("| " + " | ".join(row) + " |")
     lines.append("")
     lines.append(f"Seeds: {seeds}; iterations: {'per-environment defaults' if iterations is None else iterations}"

@@ -186,6 +186,18 @@ def test_bench_speed_states_the_simulation_floor_of_a_lunarlander_iteration():
     assert math.isfinite(box2d_step_us(run)) and box2d_step_us(run) > 0
 
 
+@pytest.mark.parametrize("seeds, cell", [(1, "-87.70"), (2, "-86.70 ± 1.41")])
+def test_bench_baselines_aer_cell_with_one_seed_or_more(monkeypatch, seeds, cell):
+    """`python -m ifo bench --seeds 1` prints BCO(α)'s AER as a value, not "± 0.00"; more seeds, mean ± sample sd."""
+    import ifo.bench as bench_mod
+
+    aers = iter([-87.7, -85.7] * 3)
+    monkeypatch.setattr(bench_mod, "run_once", lambda env, method, seed, iterations, quick: dict(
+        performance=0.9, aer=next(aers), setup_seconds=0.0, seconds_per_iteration=0.5, iterations=2))
+    row = bench_mod.bench_table(["acrobot"], seeds=seeds, log=lambda msg: None).splitlines()[2]
+    assert row.rstrip(" |").endswith(cell)
+
+
 def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, monkeypatch):
     """A table's mean ± sd hides which seed failed: `bench seeds` prints one line per finished training,
     rows in the order they first finished, seeds in order; a failure later retried shows its success only."""
