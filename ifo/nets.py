@@ -296,56 +296,54 @@ def _head(in_dim: int, n_actions: int, hidden: int = 128) -> nn.Module:
 
 
 # ----------------------------------------------------------------------------- models
-class InverseDynamics(nn.Module):
-    """M_theta(a | s_t, s_{t+1}). Vector input: [s_t, s_{t+1} - s_t] (the change carries the action)."""
+class _StateModel(nn.Module):
+    """The shape the IDM and the policy share: image states through the residual encoder and a dropout
+    head, vector states through an MLP; `frames` states side by side (the IDM's two, the policy's one)."""
 
-    def __init__(self, obs_shape: tuple[int, ...], n_actions: int, hidden=(32, 32), attention: str = "none",
-                 layer_norm: bool = False):
+    def __init__(self, obs_shape: tuple[int, ...], n_actions: int, frames: int, hidden=(32, 32),
+                 attention: str = "none", layer_norm: bool = False):
         super().__init__()
         self.is_image = len(obs_shape) == 3
         if self.is_image:
             self.encoder = ImageEncoder(attention=attention != "none")
-            self.head = _head(2 * self.encoder.out_dim, n_actions)
+            self.head = _head(frames * self.encoder.out_dim, n_actions)
         else:
-            self.mlp = MLP(2 * obs_shape[0], n_actions, hidden, attention, layer_norm)
+            self.mlp = MLP(frames * obs_shape[0], n_actions, hidden, attention, layer_norm)
 
-    def inputs(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
-        return torch.cat([s, s2 - s], dim=-1)
+    def mlp_input(self, *states: torch.Tensor) -> torch.Tensor:
+        """What the MLP sees (vector states): `fit` trains it on this by hand."""
+        raise NotImplementedError
 
-    def fit_input_scaling(self, s: torch.Tensor, s2: torch.Tensor) -> None:
+    def fit_input_scaling(self, *states: torch.Tensor) -> None:
         if not self.is_image:
-            self.mlp.standardize.fit(self.inputs(s, s2))
+            self.mlp.standardize.fit(self.mlp_input(*states))
+
+
+class InverseDynamics(_StateModel):
+    """M_theta(a | s_t, s_{t+1}). Vector input: [s_t, s_{t+1} - s_t] (the change carries the action)."""
+
+    def __init__(self, obs_shape: tuple[int, ...], n_actions: int, hidden=(32, 32), attention: str = "none",
+                 layer_norm: bool = False):
+        super().__init__(obs_shape, n_actions, 2, hidden, attention, layer_norm)
 
     def mlp_input(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
-        """What the MLP sees (vector states): `fit` trains it on this by hand."""
-        return self.inputs(s, s2)
+        return torch.cat([s, s2 - s], dim=-1)
 
     def forward(self, s: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
         if self.is_image:
             both = self.encoder(torch.cat([s, s2]))  # shared weights on both frames
             return self.head(torch.cat(both.split(len(s)), dim=-1))
-        return self.mlp(self.inputs(s, s2))
+        return self.mlp(self.mlp_input(s, s2))
 
 
-class Policy(nn.Module):
+class Policy(_StateModel):
     """pi_phi(a | s)."""
 
     def __init__(self, obs_shape: tuple[int, ...], n_actions: int, hidden=(32, 32), attention: str = "none",
                  layer_norm: bool = False):
-        super().__init__()
-        self.is_image = len(obs_shape) == 3
-        if self.is_image:
-            self.encoder = ImageEncoder(attention=attention != "none")
-            self.head = _head(self.encoder.out_dim, n_actions)
-        else:
-            self.mlp = MLP(obs_shape[0], n_actions, hidden, attention, layer_norm)
-
-    def fit_input_scaling(self, s: torch.Tensor) -> None:
-        if not self.is_image:
-            self.mlp.standardize.fit(s)
+        super().__init__(obs_shape, n_actions, 1, hidden, attention, layer_norm)
 
     def mlp_input(self, s: torch.Tensor) -> torch.Tensor:
-        """What the MLP sees (vector states): `fit` trains it on this by hand."""
         return s
 
     def forward(self, s: torch.Tensor) -> torch.Tensor:
