@@ -114,8 +114,8 @@ def step_floor(steps: int = 400) -> dict[str, float]:
 
 def image_step_ms(obs_shape: tuple[int, ...], n_actions: int, attention: str = "self", batch: int = 128,
                   steps: int = 10) -> dict[str, float]:
-    """Milliseconds for one training step (fused Adam, batch 128) of the maze's image policy and IDM, the
-    convolutions an iteration's fits are made of: best of three runs of `steps` steps."""
+    """Milliseconds for one training step (fused Adam, a mini-batch of `batch`) of the maze's image policy and
+    IDM, the convolutions an iteration's fits are made of: best of three runs of `steps` steps."""
     import torch
     import torch.nn.functional as F
 
@@ -177,11 +177,11 @@ def box2d_step_us(run: Run) -> float:
 
 
 def environment_steps(records: list[dict], eval_episodes: int) -> dict[str, float]:
-    """Environment steps of the last iteration: the learner's own runs (the growth of its step count) and
-    the evaluation (its episodes' mean length times their number)."""
+    """Environment steps of the last iteration: the learner's own runs (the growth of its step count since the
+    iteration before; 0 after the first, whose count also holds I_pre) and the evaluation (its episodes' mean
+    length times their number)."""
     last = records[-1]
-    before = records[-2]["samples"]["environment_steps"] if len(records) > 1 else None
-    own = last["samples"]["environment_steps"] - before if before is not None else float("nan")
+    own = last["samples"]["environment_steps"] - records[-2]["samples"]["environment_steps"] if len(records) > 1 else 0
     return {"rollout": own, "evaluate": last["evaluation"]["mean_length"] * eval_episodes}
 
 
@@ -195,7 +195,7 @@ def arithmetic_floors(rows: list[tuple]) -> list[str]:
         image_fits = (len(run.ctx.obs_shape) == 3 and "train_size" in records[-1].get("idm", {})
                       and hasattr(cfg.learner, "policy_epochs"))  # the BCO family's IDM and policy on images
         if image_fits:
-            key = (run.ctx.obs_shape, spec.n_actions, cfg.learner.attention)
+            key = (run.ctx.obs_shape, spec.n_actions, cfg.learner.attention, cfg.learner.batch_size)
             if key not in step_ms:
                 step_ms[key] = image_step_ms(*key)
             ms, counts = step_ms[key], fit_steps(records[-1], cfg.learner)
@@ -210,8 +210,10 @@ def arithmetic_floors(rows: list[tuple]) -> list[str]:
             steps = environment_steps(records, cfg.eval_episodes)
             total = steps["rollout"] + steps["evaluate"]
             spent = sum(records[-1]["seconds"].get(p, 0.0) for p in ("rollout", "evaluate"))
-            lines.append(f"{env} {method}: the last iteration stepped {total:,.0f} environment steps (its runs "
-                         f"{steps['rollout']:,.0f}, evaluation {steps['evaluate']:,.0f}); Box2D's world step "
+            runs = (f"its runs {steps['rollout']:,.0f}" if len(records) > 1
+                    else "its runs not counted: the first iteration's count holds I_pre")
+            lines.append(f"{env} {method}: the last iteration stepped {total:,.0f} environment steps ({runs}, "
+                         f"evaluation {steps['evaluate']:,.0f}); Box2D's world step "
                          f"alone takes {box2d_us:.1f} µs in the policy's episodes (`ifo.bench.box2d_step_us`), so "
                          f"{total * box2d_us / 1e6:.2f} s of simulation, against {spent:.2f} s in its rollout "
                          "and evaluate phases.")
