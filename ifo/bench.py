@@ -6,8 +6,10 @@ Speed is measured here (a command that prints figures), never in timed tests.
 """
 from __future__ import annotations
 
+import functools
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -81,15 +83,7 @@ def step_floor(steps: int = 400) -> dict[str, float]:
     from ifo.nets import MLP
 
     x, y = torch.randn(128, 4), torch.randint(0, 2, (128,))
-
-    def best_of(step) -> float:
-        best = np.inf
-        for _ in range(3):
-            start = time.perf_counter()
-            for _ in range(steps):
-                step()
-            best = min(best, (time.perf_counter() - start) / steps * 1000)
-        return best
+    best_of = functools.partial(_best_ms, steps=steps)
 
     out = {}
     for attention in ("none", "gated"):
@@ -137,14 +131,20 @@ def image_step_ms(obs_shape: tuple[int, ...], n_actions: int, attention: str = "
             opt.step()
 
         step()  # the first step builds Adam's state
-        best = np.inf
-        for _ in range(3):
-            start = time.perf_counter()
-            for _ in range(steps):
-                step()
-            best = min(best, (time.perf_counter() - start) / steps * 1000)
-        out[role] = best
+        out[role] = _best_ms(step, steps)
     return out
+
+
+def _best_ms(step: Callable[[], None], steps: int) -> float:
+    """Milliseconds per call of `step`: the best of three runs of `steps` calls (the least disturbed by
+    whatever else the machine does)."""
+    best = np.inf
+    for _ in range(3):
+        start = time.perf_counter()
+        for _ in range(steps):
+            step()
+        best = min(best, (time.perf_counter() - start) / steps * 1000)
+    return best
 
 
 def fit_steps(record: dict, learner_config) -> dict[str, int]:
