@@ -3,7 +3,8 @@
 Every `Made with `python -m ifo ...`` in docs/ and README.md is parsed by the command line's own parser
 (nothing is trained), and its --table, --envs and --rows must name a table, environments and rows that
 exist; a renamed option or row fails here, not on a reader's machine. The tables' statistics (sample sd,
-95 % interval, verdicts) are tested here too, since the documents quote them.
+95 % interval, verdicts) are tested here too, since the documents quote them. A table whose trainings ship
+(its results file beside it, or the app's Chapter 7 results) is re-rendered from them, training nothing.
 """
 import re
 import shlex
@@ -111,4 +112,42 @@ def test_a_table_with_its_results_file_is_what_its_command_prints_from_that_file
     assert copy.read_bytes() == shipped.read_bytes(), "the command trained or appended rows"
     # the footer names the command as the process was started (under pytest: not this command)
     body = lambda text: [line for line in text.splitlines() if not line.startswith("Made with `")]  # noqa: E731
+    assert body(out.read_text(encoding="utf-8")) == body((ROOT / where).read_text(encoding="utf-8"))
+
+
+def shipped_resilience_commands() -> list[tuple[str, str]]:
+    """The documented Chapter 7 tables: their sweeps shipped every training to assets/resilience/<env>.jsonl (--ship)."""
+    return [(where, command) for where, command in documented_commands()
+            if shlex.split(command)[3:5] == ["bench", "resilience"] and "--ship" in shlex.split(command)]
+
+
+def test_every_chapter_7_table_ships_its_results():
+    assert len(shipped_resilience_commands()) >= 5
+
+
+@pytest.mark.parametrize("where,command", shipped_resilience_commands(), ids=lambda v: v if ".md" in v else None)
+def test_a_chapter_7_table_is_what_its_command_prints_from_the_shipped_results(where, command, tmp_path,
+                                                                               monkeypatch):
+    """A Chapter 7 table's sweep store (runs/sweeps/...) does not ship, but every training it made does, in the app's
+    results files: on a fresh clone its command, given those files as the store, trains nothing and prints the
+    documented table, number for number. Only the line saying what that sweep trained, and how fast, differs."""
+    from ifo import sweep
+    from ifo.cli import main
+    from ifo.reproduce.chapter7 import shipped_results_path
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("the shipped results lack a training of this table")
+
+    monkeypatch.setattr(sweep, "execute", no_training)
+    argv = shlex.split(command)[3:]
+    envs = argv[argv.index("--envs") + 1].split(",")
+    shipped = b"".join(shipped_results_path(env).read_bytes() for env in envs)
+    store, out = tmp_path / "results.jsonl", tmp_path / "table.md"
+    store.write_bytes(shipped)
+    argv[argv.index("--store") + 1], argv[argv.index("--out") + 1] = str(store), str(out)
+    argv = [a for a in argv if a not in ("--ship", "--local")] + ["--local"]
+    assert main(argv) == 0
+    assert store.read_bytes() == shipped, "the command trained or appended rows"
+    body = lambda text: [line for line in text.splitlines()  # noqa: E731
+                         if not line.startswith(("Made with `", "Sweep: "))]
     assert body(out.read_text(encoding="utf-8")) == body((ROOT / where).read_text(encoding="utf-8"))
