@@ -8,6 +8,7 @@ exist; a renamed option or row fails here, not on a reader's machine. The tables
 """
 import re
 import shlex
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -75,74 +76,39 @@ def test_a_thesis_cell_that_is_a_fill_in_is_marked_and_explained(monkeypatch):
     assert "| -100.000 ± 0.000 | [-100.000, -100.000] |" in row
 
 
+def shipped_results_files(argv: list[str]) -> list[Path]:
+    """The files a documented table's trainings ship in: the results file its command names (--store FILE.jsonl), or,
+    for a Chapter 7 sweep whose store (runs/sweeps/...) did not ship, the app's results files it wrote them to
+    (--ship, assets/resilience/<env>.jsonl). [] when they do not ship."""
+    from ifo.reproduce.chapter7 import shipped_results_path
+
+    if argv[:1] != ["bench"] or argv[1:2] not in (["reproduce"], ["resilience"]) or "--store" not in argv:
+        return []
+    store = ROOT / argv[argv.index("--store") + 1]
+    if store.suffix == ".jsonl" and store.is_file():
+        return [store]
+    if argv[1] == "resilience" and "--ship" in argv:
+        return [shipped_results_path(env) for env in argv[argv.index("--envs") + 1].split(",")]
+    return []
+
+
 def shipped_table_commands() -> list[tuple[str, str]]:
-    """The documented tables whose results file ships in the repository (--store FILE.jsonl)."""
-    out = []
-    for where, command in documented_commands():
-        argv = shlex.split(command)[3:]
-        if "--store" in argv and argv[:2] == ["bench", "reproduce"]:
-            store = ROOT / argv[argv.index("--store") + 1]
-            if store.suffix == ".jsonl" and store.is_file():
-                out.append((where, command))
-    return out
+    """The documented tables whose trainings ship in the repository."""
+    return [(where, command) for where, command in documented_commands()
+            if shipped_results_files(shlex.split(command)[3:])]
 
 
 def test_some_tables_ship_the_results_they_were_made_from():
-    assert len(shipped_table_commands()) >= 2
+    kinds = Counter(shlex.split(command)[4] for _, command in shipped_table_commands())
+    assert kinds["reproduce"] >= 2 and kinds["resilience"] >= 5
 
 
 @pytest.mark.parametrize("where,command", shipped_table_commands(), ids=lambda v: v if ".md" in v else None)
-def test_a_table_with_its_results_file_is_what_its_command_prints_from_that_file(where, command, tmp_path,
-                                                                                  monkeypatch):
-    """On a fresh clone the documented command, with the shipped results file, trains nothing and prints the
-    documented table: every number of it comes from the seeds the file lists (`bench seeds --store FILE`)."""
-    from ifo import sweep
-    from ifo.cli import main
-
-    def no_training(*args, **kwargs):
-        raise AssertionError("the shipped results file lacks a training of this table")
-
-    monkeypatch.setattr(sweep, "execute", no_training)
-    argv = shlex.split(command)[3:]
-    shipped = ROOT / argv[argv.index("--store") + 1]
-    copy, out = tmp_path / shipped.name, tmp_path / "table.md"
-    copy.write_bytes(shipped.read_bytes())
-    argv[argv.index("--store") + 1], argv[argv.index("--out") + 1] = str(copy), str(out)
-    assert main(argv + ["--local"]) == 0
-    assert copy.read_bytes() == shipped.read_bytes(), "the command trained or appended rows"
-    # the footer names the command as the process was started (under pytest: not this command)
-    body = lambda text: [line for line in text.splitlines() if not line.startswith("Made with `")]  # noqa: E731
-    assert body(out.read_text(encoding="utf-8")) == body((ROOT / where).read_text(encoding="utf-8"))
-
-
-def chapter_7_results(argv: list[str]) -> bytes | None:
-    """What a documented Chapter 7 table's trainings shipped as: the results file beside it (--store FILE.jsonl), or,
-    when its sweep store (runs/sweeps/...) did not ship, the app's results files it wrote them to (--ship)."""
-    from ifo.reproduce.chapter7 import shipped_results_path
-
-    store = ROOT / argv[argv.index("--store") + 1]
-    if store.suffix == ".jsonl" and store.is_file():
-        return store.read_bytes()
-    if "--ship" in argv:
-        return b"".join(shipped_results_path(env).read_bytes() for env in argv[argv.index("--envs") + 1].split(","))
-    return None
-
-
-def shipped_resilience_commands() -> list[tuple[str, str]]:
-    return [(where, command) for where, command in documented_commands()
-            if shlex.split(command)[3:5] == ["bench", "resilience"] and chapter_7_results(shlex.split(command)[3:])]
-
-
-def test_every_chapter_7_table_ships_its_results():
-    assert len(shipped_resilience_commands()) >= 5
-
-
-@pytest.mark.parametrize("where,command", shipped_resilience_commands(), ids=lambda v: v if ".md" in v else None)
-def test_a_chapter_7_table_is_what_its_command_prints_from_the_shipped_results(where, command, tmp_path,
-                                                                               monkeypatch):
-    """A Chapter 7 table's trainings ship, beside it or in the app's results files: on a fresh clone its command,
-    given them as the store, trains nothing and prints the documented table, number for number. Only the line
-    saying what the sweep trained, and how fast, differs."""
+def test_a_table_whose_results_ship_is_what_its_command_prints_from_them(where, command, tmp_path, monkeypatch):
+    """On a fresh clone the documented command, given the shipped results as its store, trains nothing and prints
+    the documented table: every number of it comes from the seeds they list (`bench seeds --store FILE`). Only the
+    footer (the command as the process was started) and a Chapter 7 table's "Sweep:" line (what that sweep trained,
+    and how fast) differ."""
     from ifo import sweep
     from ifo.cli import main
 
@@ -151,11 +117,11 @@ def test_a_chapter_7_table_is_what_its_command_prints_from_the_shipped_results(w
 
     monkeypatch.setattr(sweep, "execute", no_training)
     argv = shlex.split(command)[3:]
-    shipped = chapter_7_results(argv)
+    shipped = b"".join(path.read_bytes() for path in shipped_results_files(argv))
     store, out = tmp_path / "results.jsonl", tmp_path / "table.md"
     store.write_bytes(shipped)
     argv[argv.index("--store") + 1], argv[argv.index("--out") + 1] = str(store), str(out)
-    argv = [a for a in argv if a not in ("--ship", "--local")] + ["--local"]
+    argv = [a for a in argv if a not in ("--ship", "--local")] + ["--local"]  # --ship would write the app's files
     assert main(argv) == 0
     assert store.read_bytes() == shipped, "the command trained or appended rows"
     body = lambda text: [line for line in text.splitlines()  # noqa: E731
