@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ifo.data.npz import NPY_HEADER_LOCK
+
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write to a temporary file in the same folder, fsync, then rename over `path`.
@@ -81,7 +83,7 @@ def save_state_dict(path: str | os.PathLike, state: dict[str, torch.Tensor], met
 
 
 def load_state_dict(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict]:
-    with np.load(path, allow_pickle=False) as data:
+    with NPY_HEADER_LOCK, np.load(path, allow_pickle=False) as data:  # each member's header is parsed as it is read
         meta = json.loads(str(data["__meta__"])) if "__meta__" in data.files else {}
         state = {k: torch.from_numpy(data[k].copy()) for k in data.files if k != "__meta__"}
     return state, meta

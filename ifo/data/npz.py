@@ -16,6 +16,7 @@ import io
 import lzma
 import math
 import struct
+import threading
 import zipfile
 import zlib
 from contextlib import contextmanager
@@ -87,6 +88,13 @@ def _members(zf: zipfile.ZipFile, keys, label: str) -> dict[str, zipfile.ZipInfo
     return found
 
 
+# numpy parses a .npy header with ast.literal_eval, and CPython 3.11 keeps the AST builder's recursion count per
+# interpreter, not per thread (gh-106905): two threads parsing at once (students opening rollout videos, whose
+# experts load from .npz) can fail with "SystemError: AST constructor recursion depth mismatch". Every .npy
+# header this package parses, here and in ifo.io.load_state_dict, is parsed under this lock.
+NPY_HEADER_LOCK = threading.Lock()
+
+
 def _read_header(f, info: zipfile.ZipInfo, label: str) -> ArrayHeader:
     """Parse the .npy header at the start of member stream `f`, leaving `f` at the data."""
     where = f"{label}: member '{info.filename}'"
@@ -98,7 +106,8 @@ def _read_header(f, info: zipfile.ZipInfo, label: str) -> ArrayHeader:
         raise NpzError(f"{where} uses .npy format version {version[0]}.{version[1]}, which is not accepted")
     try:
         read = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
-        shape, fortran_order, dtype = read(f)  # a literal dict of at most 10,000 characters, parsed without eval
+        with NPY_HEADER_LOCK:
+            shape, fortran_order, dtype = read(f)  # a literal dict of at most 10,000 characters, parsed without eval
     except ValueError as exc:
         raise NpzError(f"{where} has an invalid .npy header ({exc})") from None
     if any(d < 0 for d in shape):
