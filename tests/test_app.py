@@ -725,6 +725,31 @@ def test_the_server_skips_streamlits_full_garbage_collection_after_every_page_ru
     assert settings["runner"]["postScriptGC"] is False
 
 
+def test_the_server_compiles_its_pages_without_building_python_syntax_trees(monkeypatch):
+    """Streamlit's "magic" builds each page's syntax tree with ast.parse, which CPython 3.11 cannot do in one
+    thread while another (a training reading a .npy header with ast.literal_eval) does the same (gh-106905).
+    With the repo's config.toml every page script, app.py and views/, compiles without ast.parse."""
+    import ast
+    import tomllib
+
+    from streamlit import config
+    from streamlit.runtime.scriptrunner.script_cache import ScriptCache
+
+    settings = tomllib.loads((ROOT / ".streamlit" / "config.toml").read_text())
+    built = []
+    real_parse = ast.parse
+    monkeypatch.setattr(ast, "parse", lambda *a, **k: built.append(a[1:2]) or real_parse(*a, **k))
+    before = config.get_option("runner.magicEnabled")
+    config.set_option("runner.magicEnabled", settings["runner"]["magicEnabled"])
+    try:
+        cache = ScriptCache()
+        for script in [ROOT / "app.py", *sorted((ROOT / "views").glob("*.py"))]:
+            assert cache.get_bytecode(str(script)) is not None
+    finally:
+        config.set_option("runner.magicEnabled", before)
+    assert built == []
+
+
 def test_a_link_may_name_choices_as_the_configuration_does():
     """`?step.env=maze3&step.method=iupe` (the names of the CLI and the configuration) opens that run, as
     the labels the page itself writes into its links (`Maze 3x3`, `IUPE`) do; it was once ignored."""
