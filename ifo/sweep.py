@@ -14,6 +14,9 @@
   configuration × seed, with the code's commit and the machine that ran it; a rerun skips the rows
   already there, so an interrupted sweep loses only the trainings in flight. Failed trainings are
   written too (with their error) and retried on the next run.
+- A training's row says whether the code it ran was the code the sweep started from (`code_changed`):
+  workers import `ifo` from the checkout when they start, so an edit made while a long sweep runs can
+  reach its later trainings under the commit recorded at the start (`bench seeds` marks such rows).
 - At most as many trainings are in flight as the Ray cluster has CPUs, so "running" on the progress
   bar means running, and an interruption loses at most that many.
 
@@ -102,6 +105,18 @@ def code_dirty() -> bool | None:
     except (OSError, subprocess.SubprocessError):
         return None
     return bool(out.stdout.strip()) if out.returncode == 0 else None
+
+
+def code_fingerprint(root: Path | None = None) -> str:
+    """A hash of the `ifo` package's Python sources as they are on disk now (paths and contents)."""
+    package = (root or ROOT) / "ifo"
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        digest.update(path.relative_to(package).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
+
+
+_CODE_WHEN_FIRST_RUN: dict[str, str] = {}  # checkout -> its fingerprint when this process first trained from it
 
 
 def machine() -> dict:
@@ -211,7 +226,9 @@ def read_rows(path: str | os.PathLike) -> list[dict]:
 # ----------------------------------------------------------------------------- running one task
 def execute(fn: Callable[..., dict], kwargs: dict) -> dict:
     """Run one training here (in a Ray worker or in-process): torch at one thread; the result with the
-    wall-clock seconds and the machine that ran it. Exceptions propagate."""
+    wall-clock seconds, the machine that ran it and the fingerprints of the code it ran (when this process
+    first trained, its modules just imported, and after this training). Exceptions propagate."""
+    loaded = _CODE_WHEN_FIRST_RUN.setdefault(str(ROOT), code_fingerprint())
     os.environ["IFO_TORCH_THREADS"] = "1"
     from ifo.runtime import limit_threads
 
@@ -219,7 +236,7 @@ def execute(fn: Callable[..., dict], kwargs: dict) -> dict:
     start = time.perf_counter()
     result = fn(**kwargs)
     return {"result": _jsonable(result), "seconds": time.perf_counter() - start, "machine": machine(),
-            "pid": os.getpid()}
+            "pid": os.getpid(), "code": [loaded, code_fingerprint()]}
 
 
 # ----------------------------------------------------------------------------- Ray
@@ -285,6 +302,7 @@ class SweepReport:
     mode: str  # "local Ray, 2 CPUs, ...", "Ray at ray://...", "in-process, one after another"
     ray_start_seconds: float = 0.0
     light: int = 0  # reference rows done here (lookups, counted in `done`, not in the rate)
+    code_changed: int = 0  # trainings whose code was not the code the sweep started from
 
     @property
     def per_hour(self) -> float | None:
@@ -295,8 +313,10 @@ class SweepReport:
         rate = f"{self.per_hour:.0f} trainings per hour" if self.per_hour else "no training ran"
         refs = f" (and {self.light} reference rows)" if self.light else ""
         start = f" (Ray took {self.ray_start_seconds:.0f} s to start)" if self.ray_start_seconds else ""
-        return (f"{self.done - self.light} trainings done{refs}, {self.failed} failed, {self.skipped} already in the "
-                f"store, in {self.seconds:.0f} s on {self.mode}{start}: {rate}")
+        changed = (f" ({self.code_changed} on code that changed during the sweep: their rows say code_changed)"
+                   if self.code_changed else "")
+        return (f"{self.done - self.light} trainings done{refs}{changed}, {self.failed} failed, {self.skipped} already "
+                f"in the store, in {self.seconds:.0f} s on {self.mode}{start}: {rate}")
 
 
 def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = None, local: bool = False,
@@ -310,16 +330,19 @@ def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = N
         unique.setdefault(t.key, t)
     finished = store.done()
     todo = [t for k, t in unique.items() if k not in finished]
-    commit, dirty = code_commit(), code_dirty()
-    n_failed = n_done = n_light = 0
+    commit, dirty, code = code_commit(), code_dirty(), code_fingerprint()
+    n_failed = n_done = n_light = n_changed = 0
     ray_seconds = 0.0
     mode = "in-process, one after another"
 
     def record(task: Task, out: dict | None, error: str | None) -> dict:
+        nonlocal n_changed
         row = {"key": task.key, "spec": task.spec, "status": DONE if error is None else FAILED,
                "commit": commit, "dirty": dirty, "driver": machine(), "finished_at": time.time()}
         if error is None:
-            row.update(result=out["result"], seconds=out["seconds"], machine=out["machine"])
+            row.update(result=out["result"], seconds=out["seconds"], machine=out["machine"],
+                       code_changed=any(ran != code for ran in out.get("code") or [None]))
+            n_changed += row["code_changed"]
         else:
             row["error"] = error
         store.append(row)
@@ -382,7 +405,7 @@ def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = N
     finally:
         bar.close()
     report = SweepReport(len(unique), len(finished.keys() & unique.keys()), n_done, n_failed,
-                         time.perf_counter() - start, mode, ray_seconds, n_light)
+                         time.perf_counter() - start, mode, ray_seconds, n_light, n_changed)
     done = store.done()
     return {k: done[k] for k in unique if k in done}, report
 
@@ -435,7 +458,8 @@ def seeds_table(done: Iterable[dict]) -> str:
                      f"{spec.get('iterations') or 'default'} | {spec.get('seed', '—')} | "
                      f"{cell(result.get('performance'), '{:.3f}')} | {cell(result.get('aer'), '{:.3f}')} | "
                      f"{along_the_curve(result)} | "
-                     f"{cell(result.get('seconds'), '{:.0f}')} | {str(r.get('commit') or '?')[:7]} | "
+                     f"{cell(result.get('seconds'), '{:.0f}')} | {str(r.get('commit') or '?')[:7]}"
+                     f"{' (code changed during the sweep)' if r.get('code_changed') else ''} | "
                      f"{_where(r)} |")
     return "\n".join(lines)
 

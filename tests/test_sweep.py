@@ -71,6 +71,31 @@ def test_in_process_sweeps_skip_what_is_done_and_retry_what_failed(tmp_path):
     assert (report.done, report.failed, report.skipped) == (0, 1, 3) and len(rows) == 3
 
 
+def edits_the_code(checkout: str) -> dict:
+    (Path(checkout) / "ifo" / "lesson.py").write_text("CHANGED = True\n")
+    return {"y": 1}
+
+
+def test_a_training_whose_code_changed_during_the_sweep_says_so(tmp_path, monkeypatch):
+    """Workers import `ifo` from the checkout as they start, so an edit made while a long sweep runs reaches
+    its later trainings under the commit recorded at the start (Tables 7.5 and 7.6's 40-round trainings do
+    not train again to their numbers with that commit). Their rows, the report and `bench seeds` say so."""
+    checkout = tmp_path / "checkout"
+    (checkout / "ifo").mkdir(parents=True)
+    (checkout / "ifo" / "lesson.py").write_text("CHANGED = False\n")
+    monkeypatch.setattr(sweep, "ROOT", checkout)
+    tasks = [Task({"x": 0}, double, {"x": 0}), Task({"x": 1}, edits_the_code, {"checkout": str(checkout)}),
+             Task({"x": 2}, double, {"x": 2})]
+    rows, report = run_sweep(tasks, ResultStore(tmp_path / "s"), local=True, progress=False)
+    assert {r["spec"]["x"]: r["code_changed"] for r in rows.values()} == {0: False, 1: True, 2: True}
+    assert report.code_changed == 2 and "(2 on code that changed during the sweep" in report.line()
+    assert sweep.seeds_table(rows.values()).count("(code changed during the sweep)") == 2
+    rows, report = run_sweep(tasks + [Task({"x": 3}, double, {"x": 3})], ResultStore(tmp_path / "s"), local=True,
+                             progress=False)  # a new sweep starts from the code as it is now
+    assert rows[Task({"x": 3}, double).key]["code_changed"] is True  # this process trained from the old code
+    assert "code that changed" in report.line()
+
+
 def test_task_keys_name_the_training_not_the_order_of_its_settings():
     assert Task({"a": 1, "b": [1, 2]}, double).key == Task({"b": [1, 2], "a": 1}, double).key
     assert Task({"a": 1}, double).key != Task({"a": 2}, double).key
@@ -96,6 +121,7 @@ def test_a_sweep_on_a_local_ray_gives_the_same_results_as_in_process(tmp_path):
         assert a["record"]["evaluation"]["returns"] == b["record"]["evaluation"]["returns"]
         assert a["curve"] == b["curve"]
         assert on_ray[key]["machine"]["hostname"] == here[key]["machine"]["hostname"]
+        assert on_ray[key]["code_changed"] is here[key]["code_changed"] is False  # the workers ran this checkout
     direct = train_row(Row("BC", "bc"), "cartpole", 1, 1, dict(TINY))  # and the same as a plain call
     key = next(t.key for t in tasks if t.spec["row"] == "BC" and t.spec["seed"] == 1)
     assert direct["aer"] == here[key]["result"]["aer"]
