@@ -78,7 +78,7 @@ def edits_the_code(checkout: str) -> dict:
 
 def test_a_training_whose_code_changed_during_the_sweep_says_so(tmp_path, monkeypatch):
     """Workers import `ifo` from the checkout as they start, so an edit made while a long sweep runs reaches
-    its later trainings under the commit recorded at the start (one possible reason why Table 7.5's 40-round
+    its later trainings under the commit recorded at the start (one possible reason why Tables 7.5-7.6's 40-round
     IUPE trainings do not train again to their numbers with their commit). Their rows, the report and
     `bench seeds` say so."""
     checkout = tmp_path / "checkout"
