@@ -107,9 +107,9 @@ def code_dirty() -> bool | None:
     return bool(out.stdout.strip()) if out.returncode == 0 else None
 
 
-def code_fingerprint(root: Path | None = None) -> str:
+def code_fingerprint() -> str:
     """A hash of the `ifo` package's Python sources as they are on disk now (paths and contents)."""
-    package = (root or ROOT) / "ifo"
+    package = ROOT / "ifo"
     digest = hashlib.sha256()
     for path in sorted(package.rglob("*.py")):
         digest.update(path.relative_to(package).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
