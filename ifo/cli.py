@@ -228,8 +228,10 @@ def cmd_bench(a: argparse.Namespace) -> int:
                            "results file such as assets/resilience/cartpole.jsonl)")
         if not Path(a.store).exists():
             raise CliError(f"--store: no results store or file at {a.store}")
+        if a.at_iteration is not None and a.at_iteration < 1:
+            raise CliError(f"--at-iteration counts from 1, got {a.at_iteration}")
         try:
-            text = seeds_table(ResultStore.at(a.store).done().values())
+            text = seeds_table(ResultStore.at(a.store).done().values(), a.at_iteration)
         except StoreError as exc:  # over the size limit: say so, read nothing
             raise CliError(f"--store: {exc}") from exc
     elif a.what == "sweep":
@@ -369,6 +371,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "FILE.jsonl (JSON lines); a rerun skips the ones already there, so a complete store "
                         "renders its table without training (default: a temporary folder, nothing resumed); "
                         "seeds: the store to list (a folder, or a file such as assets/resilience/cartpole.jsonl)")
+    p.add_argument("--at-iteration", type=int, metavar="N",
+                   help="seeds: also each training's P and AER at iteration N (from its stored curve; — where the "
+                        "curve has no such iteration)")
     p.add_argument("--address", help="reproduce/resilience: a Ray cluster (ray://HOST:10001); default RAY_ADDRESS, "
                                      "else a local Ray on 2 CPUs")
     p.add_argument("--local", action="store_true",

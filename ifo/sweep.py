@@ -419,10 +419,12 @@ def _where(row: dict) -> str:
 LAST_ITERATIONS = 10  # bench seeds: P over this many last iterations tells a last-iteration dip from a failure
 
 
-def seeds_table(done: Iterable[dict]) -> str:
+def seeds_table(done: Iterable[dict], at_iteration: int | None = None) -> str:
     """Finished trainings (`ResultStore.done()`), one line per seed (a table's mean ± sd hides which seed
     failed): P and AER at the last iteration, P over the last iterations and its best (from the training's
-    curve, where the store kept one), the seconds it took, the commit and machine that trained it."""
+    curve, where the store kept one), the seconds it took, the commit and machine that trained it.
+    `at_iteration`: also P and AER at that iteration of the curve (is a longer training's start a shorter
+    one's whole? Compare the two stores' lines)."""
     done = list(done)
     if not done:
         return "No finished training in this store."
@@ -449,15 +451,21 @@ def seeds_table(done: Iterable[dict]) -> str:
         best, when = max(points, key=lambda point: point[0])
         return f"{sum(last) / len(last):.3f} | {best:.3f} ({when})"
 
-    lines = [f"| table | row | environment | iterations | seed | P | AER | P, mean of the last {LAST_ITERATIONS} "
-             "iterations | best P (iteration) | seconds | commit | machine |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    def at(result: dict) -> str:  # P and AER at iteration `at_iteration`, as the curve stored them
+        curve = result.get("curve") if isinstance(result.get("curve"), list) else []
+        point = next((p for p in curve if isinstance(p, dict) and p.get("iteration") == at_iteration), {})
+        return f"{cell(point.get('performance'), '{:.3f}')} | {cell(point.get('aer'), '{:.3f}')} | "
+
+    extra = "" if at_iteration is None else f"P at iteration {at_iteration} | AER at iteration {at_iteration} | "
+    lines = [f"| table | row | environment | iterations | seed | P | AER | {extra}P, mean of the last "
+             f"{LAST_ITERATIONS} iterations | best P (iteration) | seconds | commit | machine |",
+             "|---" * (12 + 2 * (at_iteration is not None)) + "|"]
     for r in sorted(done, key=lambda r: (order[cell_of(r)], spec_of(r).get("seed", 0))):
         spec, result = spec_of(r), r.get("result") or {}
         lines.append(f"| {spec.get('table', '—')} | {spec.get('row', '—')} | {spec.get('env', '—')} | "
                      f"{spec.get('iterations') or 'default'} | {spec.get('seed', '—')} | "
                      f"{cell(result.get('performance'), '{:.3f}')} | {cell(result.get('aer'), '{:.3f}')} | "
-                     f"{along_the_curve(result)} | "
+                     f"{'' if at_iteration is None else at(result)}{along_the_curve(result)} | "
                      f"{cell(result.get('seconds'), '{:.0f}')} | {str(r.get('commit') or '?')[:7]}"
                      f"{' (code changed during the sweep)' if r.get('code_changed') else ''} | "
                      f"{_where(r)} |")

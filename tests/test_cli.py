@@ -227,6 +227,15 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, m
     assert lines == ["| 6.2 | IUPE | maze10 | 40 | 0 | 0.500 | -0.500 | 0.860 | 1.000 (2) | 151 | 0123456 | node-2 (AVX512) |",
                      "| 6.2 | IUPE | maze10 | 40 | 1 | 0.250 | -0.750 | — | — | 151 | 0123456 | node-2 (AVX512) |",
                      "| 6.2 | BCO(α) | maze10 | 40 | 0 | -0.087 | -1.087 | — | — | 151 | 0123456 | lab-7 |"]
+    # a longer training's start against a shorter one's end: P and AER at a chosen iteration, from the curve
+    assert main(["bench", "seeds", "--store", str(store.dir), "--at-iteration", "2"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "| P at iteration 2 | AER at iteration 2 |" in out[0] and out[1].count("|---") == 14
+    assert [line for line in out if line.startswith("| 6.2 | IUPE")] == [
+        "| 6.2 | IUPE | maze10 | 40 | 0 | 0.500 | -0.500 | 1.000 | — | 0.860 | 1.000 (2) | 151 | 0123456 | node-2 (AVX512) |",
+        "| 6.2 | IUPE | maze10 | 40 | 1 | 0.250 | -0.750 | — | — | — | — | 151 | 0123456 | node-2 (AVX512) |"]
+    assert main(["bench", "seeds", "--store", str(store.dir), "--at-iteration", "0"]) == 2
+    assert "counts from 1" in capsys.readouterr().err
     assert main(["bench", "seeds", "--store", str(tmp_path / "nowhere")]) == 2
     assert "no results store" in capsys.readouterr().err
     # a results file lists the same (the shipped assets/resilience/*.jsonl, checkable on a fresh clone)
