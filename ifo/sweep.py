@@ -310,6 +310,9 @@ class SweepReport:
         return 3600.0 * trainings / self.seconds if trainings > 0 and self.seconds > 0 else None
 
     def line(self) -> str:
+        if self.done == 0 and self.failed == 0 and self.skipped:  # a table rendered again from a complete store
+            return (f"nothing trained now: all {self.skipped} results were already in the store (each one's "
+                    "seconds, commit and machine: `python -m ifo bench seeds --store` on this store)")
         rate = f"{self.per_hour:.0f} trainings per hour" if self.per_hour else "no training ran"
         refs = f" (and {self.light} reference rows)" if self.light else ""
         start = f" (Ray took {self.ray_start_seconds:.0f} s to start)" if self.ray_start_seconds else ""

@@ -199,8 +199,11 @@ def test_reproduce_renders_its_table_from_the_store_and_resumes_from_it(tmp_path
     first = reproduce("6.1", seeds=1, envs=["cartpole"], iterations=1, rows=["Random", "BC"], **kw)
     rows = [json.loads(line) for line in (store / "results.jsonl").read_text().splitlines()]
     assert sorted(r["spec"]["row"] for r in rows) == ["BC", "Random"]
-    again = reproduce("6.1", seeds=1, envs=["cartpole"], iterations=1, rows=["Random", "BC"], **kw)
+    said = []
+    again = reproduce("6.1", seeds=1, envs=["cartpole"], iterations=1, rows=["Random", "BC"],
+                      **{**kw, "log": said.append})
     assert len((store / "results.jsonl").read_text().splitlines()) == 2  # nothing retrained
+    assert any("nothing trained now: all 2 results were already in the store" in line for line in said), said
     strip = lambda text: [line.rsplit("|", 3)[0] for line in text.splitlines()]  # noqa: E731 - seconds aside
     assert strip(first) == strip(again)
     assert "| BC | cartpole |" in first and first.startswith("## Table 6.1")
