@@ -234,6 +234,22 @@ def cmd_bench(a: argparse.Namespace) -> int:
             text = seeds_table(ResultStore.at(a.store).done().values(), a.at_iteration)
         except StoreError as exc:  # over the size limit: say so, read nothing
             raise CliError(f"--store: {exc}") from exc
+    elif a.what == "recheck":
+        from ifo.reproduce import recheck, row_labels
+        from ifo.sweep import ResultStore, StoreError
+
+        if not a.store or not Path(a.store).exists():
+            raise CliError("bench recheck needs --store DIR|FILE.jsonl: the stored trainings to train again (e.g. "
+                           "assets/resilience/cartpole.jsonl)" + (f"; nothing at {a.store}" if a.store else ""))
+        if not 1 <= a.rounds <= 1000 or a.seeds < 1:
+            raise CliError(f"--rounds must be 1..1000 and --seeds at least 1, got {a.rounds} and {a.seeds}")
+        try:
+            stored = list(ResultStore.at(a.store).done().values())
+        except StoreError as exc:
+            raise CliError(f"--store: {exc}") from exc
+        opts = _sweep_options(a)
+        text = recheck(stored, a.rounds, a.seeds, envs=a.envs.split(",") if a.envs else None,
+                       rows=row_labels(a.rows) if a.rows else None, address=opts["address"], ray=opts["ray"])
     elif a.what == "sweep":
         from ifo.bench import sweep_table
 
@@ -335,14 +351,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="benchmarks printed as markdown tables")
     p.add_argument("what", nargs="?",
-                   choices=["baselines", "reproduce", "resilience", "speed", "export", "vanishing", "sweep", "seeds"],
+                   choices=["baselines", "reproduce", "resilience", "speed", "export", "vanishing", "sweep", "seeds",
+                            "recheck"],
                    default="baselines",
                    help="baselines: random/expert AER and BC, BCO, BCO(α) Performance; reproduce: a thesis "
                         "table; resilience: Tables 7.2-7.6 (Ch. 7) as one sweep; speed: seconds per iteration and "
                         "per phase; export: server-side figure export speed; "
                         "vanishing: BCO(α) against IUPE on CartPole with a small I_pre; sweep: the sweep engine's "
                         "throughput in process and on Ray, and a resume after a kill; seeds: every finished "
-                        "training of a --store, one line per seed")
+                        "training of a --store, one line per seed; recheck: train again the first --rounds "
+                        "rounds of a --store's trainings here and say which come back to their stored numbers")
     p.add_argument("--trainings", type=int, default=100, help="sweep: how many small trainings")
     from ifo.reproduce import TABLES
 
@@ -374,10 +392,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--at-iteration", type=int, metavar="N",
                    help="seeds: also each training's P and AER at iteration N (from its stored curve; — where the "
                         "curve has no such iteration)")
+    p.add_argument("--rounds", type=int, default=2,
+                   help="recheck: how many first rounds of each stored training to train again (default 2)")
     p.add_argument("--address", help="reproduce/resilience: a Ray cluster (ray://HOST:10001); default RAY_ADDRESS, "
                                      "else a local Ray on 2 CPUs")
     p.add_argument("--local", action="store_true",
-                   help="reproduce/resilience: train in this process, one after another, without Ray")
+                   help="reproduce/resilience/recheck: train in this process, one after another, without Ray")
     p.add_argument("--levels", help="resilience: expert levels (comma-separated, default 1,2,3,4,5)")
     p.add_argument("--figures", metavar="DIR", help="resilience: also draw Fig 7.1 per environment into DIR (SVG)")
     p.add_argument("--ship", action="store_true",

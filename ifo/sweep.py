@@ -413,7 +413,7 @@ def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = N
     return {k: done[k] for k in unique if k in done}, report
 
 
-def _where(row: dict) -> str:
+def where_trained(row: dict) -> str:
     """The machine that trained a row (its worker's; rows before workers reported it: the driver's)."""
     where = row.get("machine") or row.get("driver") or {}
     return f"{where.get('hostname', '?')}" + (f" ({where['cpu_capability']})" if where.get("cpu_capability") else "")
@@ -471,7 +471,7 @@ def seeds_table(done: Iterable[dict], at_iteration: int | None = None) -> str:
                      f"{'' if at_iteration is None else at(result)}{along_the_curve(result)} | "
                      f"{cell(result.get('seconds'), '{:.0f}')} | {str(r.get('commit') or '?')[:7]}"
                      f"{' (code changed during the sweep)' if r.get('code_changed') else ''} | "
-                     f"{_where(r)} |")
+                     f"{where_trained(r)} |")
     return "\n".join(lines)
 
 

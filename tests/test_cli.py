@@ -325,3 +325,41 @@ def test_bench_seeds_lists_the_seeds_behind_a_shipped_resilience_cell(capsys):
             if re.match(r"\| 7\.6 \| ILPO \| lunarlander \| 40 \|", line)]
     assert sorted(int(c[4]) for c in cell) == list(range(10))
     assert round(sum(float(c[6]) for c in cell) / len(cell), 1) == -66.5
+
+
+def test_bench_recheck_trains_stored_trainings_again_and_says_which_come_back(tmp_path, capsys):
+    """Same seed, same numbers, after the fact: `bench recheck` trains the first rounds of a store's trainings
+    again with this checkout and compares them round by round with the curves the store kept. A stored curve
+    that other code made (here: edited) is named with the round it parts at; a row its table no longer has is
+    said, not trained."""
+    import json
+
+    from ifo.cli import main
+    from ifo.reproduce import reproduce
+
+    store = tmp_path / "table.jsonl"
+    reproduce("6.1", seeds=2, envs=["cartpole"], iterations=2, rows=["IUPE"], log=lambda m: None, store=str(store),
+              progress=False, eval_episodes=5, expert_episodes=2)
+    argv = ["bench", "recheck", "--store", str(store), "--rounds", "1", "--seeds", "2", "--local"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count("| 6.1 | IUPE | cartpole |") == 2 and out.count("| 1 | yes |") == 2
+    assert "2 of 2 trainings trained again to their stored numbers" in out
+    rows = [json.loads(line) for line in store.read_text().splitlines()]
+    seed1 = next(r for r in rows if r["spec"]["seed"] == 1)
+    stored_aer = seed1["result"]["curve"][0]["aer"]
+    seed1["result"]["curve"][0]["aer"] = stored_aer + 1.0  # a row another code made
+    gone = json.loads(json.dumps(rows[0]))
+    gone["key"], gone["spec"]["row"] = "gone", "Gone"  # a row its table dropped
+    store.write_text("".join(json.dumps(r) + "\n" for r in [*rows, gone]))
+    before = store.read_bytes()
+    assert main(argv + ["--rows", "IUPE,Gone"]) == 0
+    out = capsys.readouterr().out
+    assert f"| 1 | **no**, from round 1: stored AER {stored_aer + 1.0}, now {stored_aer} |" in out
+    assert "| Gone | cartpole |" in out and "not rechecked: its table no longer has this row" in out
+    assert "1 of 2 trainings trained again" in out
+    assert store.read_bytes() == before  # the store is read, never written
+    assert main(["bench", "recheck", "--store", str(tmp_path / "nowhere")]) == 2
+    assert "needs --store" in capsys.readouterr().err
+    assert main(argv[:-1] + ["--rounds", "0"]) == 2
+    assert "--rounds must be 1..1000" in capsys.readouterr().err

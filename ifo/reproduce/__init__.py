@@ -287,6 +287,89 @@ def train_rows(table: Table, chosen: list[Row], env_names: list[str], seeds: int
     return results, sum(task.key not in done for task in tasks.values())
 
 
+RECHECKED = ("aer", "performance", "fidelity")  # a curve point's numbers that must come back the same
+
+
+def recheck(stored: list[dict], rounds: int, seeds: int, envs: list[str] | None = None,
+            rows: list[str] | None = None, address: str | None = None, ray: bool = False,
+            progress: bool = True) -> str:
+    """Same seed, same numbers, checked after the fact: train again the first `rounds` rounds of stored
+    trainings (seeds below `seeds`, of the chosen environments and rows) with this checkout's code, and
+    compare them, round by round, with the curves the store kept. A learner whose schedule does not depend on
+    its round count (every one but CRIL, whose share_n defaults to the run's rounds) gives its longer
+    training's first rounds; a difference means other code, or code run differently, made the stored row."""
+    import tempfile
+
+    from ifo.sweep import ResultStore, code_commit, machine, run_sweep, where_trained
+
+    chosen = []
+    for r in stored:
+        spec, result = r.get("spec") or {}, r.get("result") or {}
+        curve = result.get("curve")
+        if (r.get("status") != "done" or not isinstance(curve, list) or not curve
+                or spec.get("method") in ("expert", "random") or not isinstance(spec.get("seed"), int)
+                or spec["seed"] >= seeds or (envs and spec.get("env") not in envs)
+                or (rows and spec.get("row") not in rows)):
+            continue
+        chosen.append(r)
+    if not chosen:
+        return "No stored training with a curve matches these environments, rows and seeds."
+    order = lambda r: (r["spec"].get("table", ""), str(r["spec"].get("row")), str(r["spec"].get("env")),  # noqa: E731
+                       str(r["spec"].get("settings")), r["spec"]["seed"])
+    chosen.sort(key=order)
+    tasks, why_not = {}, {}  # by position in `chosen`
+    for i, r in enumerate(chosen):
+        spec = r["spec"]
+        table = TABLES.get(str(spec.get("table")))
+        row = next((row for row in table.rows if row.label == spec.get("row")), None) if table else None
+        n = min(rounds, len(r["result"]["curve"]))
+        if row is None or dict(row.overrides) != spec.get("overrides", {}):
+            why_not[i] = "its table no longer has this row with these settings"
+        elif spec.get("method") == "cril" and n < len(r["result"]["curve"]):
+            why_not[i] = "CRIL's schedule depends on its round count: give --rounds its iterations"
+        else:
+            tasks[i] = row_task(table, row, spec["env"], spec["seed"], n, dict(spec.get("settings") or {}))
+    with tempfile.TemporaryDirectory(prefix="ifo-recheck-") as scratch:
+        unique = list({task.key: task for task in tasks.values()}.values())  # a 5- and a 40-round row: one run
+        done, report = run_sweep(unique, ResultStore.at(scratch), address=address,
+                                 local=not (ray or address), desc="recheck", progress=progress) \
+            if tasks else ({}, None)
+    lines = ["| table | row | environment | settings | seed | stored from (commit, machine) | rounds compared | "
+             "the same? |", "|---|---|---|---|---|---|---|---|"]
+    same = compared = 0
+    for i, r in enumerate(chosen):
+        spec = r["spec"]
+        settings = ", ".join(f"{k} {v}" for k, v in sorted((spec.get("settings") or {}).items())) or "—"
+        head = (f"| {spec.get('table')} | {spec.get('row')} | {spec.get('env')} | {settings} | {spec['seed']} | "
+                f"{str(r.get('commit') or '?')[:7]}, {where_trained(r)} | ")
+        if i in why_not:
+            lines.append(head + f"— | not rechecked: {why_not[i]} |")
+            continue
+        task = tasks[i]
+        again = done.get(task.key)
+        if again is None:
+            lines.append(head + "— | the training failed here (see the log) |")
+            continue
+        n, compared = task.spec["iterations"], compared + 1
+        old, new = r["result"]["curve"][:n], again["result"]["curve"][:n]
+        differ = next((i for i, (a, b) in enumerate(zip(old, new))
+                       if any(a.get(k) != b.get(k) for k in RECHECKED)), None)
+        if differ is None:
+            same += 1
+            lines.append(head + f"{n} | yes |")
+        else:
+            a, b = old[differ], new[differ]
+            lines.append(head + f"{n} | **no**, from round {differ + 1}: stored AER {a.get('aer')}, "
+                                f"now {b.get('aer')} |")
+    where = machine()
+    lines.append("")
+    lines.append(f"{same} of {compared} trainings trained again to their stored numbers, round by round, with "
+                 f"this checkout's code ({(code_commit() or '?')[:7]}, {where.get('hostname')}, "
+                 f"{where.get('cpu_capability') or 'CPU kernels unknown'})"
+                 + (f"; {report.line()}" if report else "") + ".")
+    return "\n".join(lines)
+
+
 def row_labels(text: str) -> list[str]:
     """A --rows value as row labels. Split at commas, except inside a label that has one
     ("BCO(α), appending I_s (Torabi et al.)"): the longest known label wins at each place."""
