@@ -355,7 +355,7 @@ def test_bench_recheck_trains_stored_trainings_again_and_says_which_come_back(tm
     before = store.read_bytes()
     assert main(argv + ["--rows", "IUPE,Gone"]) == 0
     out = capsys.readouterr().out
-    assert f"| 1 | **no**, from round 1: stored AER {stored_aer + 1.0}, now {stored_aer} |" in out
+    assert f"| 1 | **no**, from round 1: stored AER {stored_aer + 1.0:.6g}, now {stored_aer:.6g} |" in out
     assert "| Gone | cartpole |" in out and "not rechecked: its table no longer has this row" in out
     assert "1 of 2 trainings trained again" in out
     assert store.read_bytes() == before  # the store is read, never written

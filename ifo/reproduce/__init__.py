@@ -287,7 +287,14 @@ def train_rows(table: Table, chosen: list[Row], env_names: list[str], seeds: int
     return results, sum(task.key not in done for task in tasks.values())
 
 
-RECHECKED = ("aer", "performance", "fidelity")  # a curve point's numbers that must come back the same
+RECHECKED = {"aer": "AER", "performance": "P", "fidelity": "fidelity"}  # a curve point's numbers that must come back
+
+
+def _digits(value, other) -> str:
+    """`value` with as many digits as it takes to tell it from `other` (6 at least, all 17 at most)."""
+    if not isinstance(value, float) or not isinstance(other, float):
+        return str(value)
+    return next((f"{value:.{d}g}" for d in range(6, 17) if f"{value:.{d}g}" != f"{other:.{d}g}"), repr(value))
 
 
 def recheck(stored: list[dict], rounds: int, seeds: int, envs: list[str] | None = None,
@@ -359,8 +366,9 @@ def recheck(stored: list[dict], rounds: int, seeds: int, envs: list[str] | None 
             lines.append(head + f"{n} | yes |")
         else:
             a, b = old[differ], new[differ]
-            lines.append(head + f"{n} | **no**, from round {differ + 1}: stored AER {a.get('aer')}, "
-                                f"now {b.get('aer')} |")
+            parted = "; ".join(f"stored {name} {_digits(a.get(k), b.get(k))}, now {_digits(b.get(k), a.get(k))}"
+                               for k, name in RECHECKED.items() if a.get(k) != b.get(k))
+            lines.append(head + f"{n} | **no**, from round {differ + 1}: {parted} |")
     where = machine()
     lines.append("")
     lines.append(f"{same} of {compared} trainings trained again to their stored numbers, round by round, with "
