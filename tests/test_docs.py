@@ -129,22 +129,26 @@ def test_a_table_whose_results_ship_is_what_its_command_prints_from_them(where, 
     assert body(out.read_text(encoding="utf-8")) == body((ROOT / where).read_text(encoding="utf-8"))
 
 
-def test_a_longer_shipped_training_begins_with_the_shorter_one_of_the_same_seed():
-    """Same seed, same numbers: IUPE's schedule does not depend on its round count, so the first 40 rounds of each
-    shipped 100-round IUPE training on LunarLander (docs/reproduction/) are the shipped 40-round training of its
-    level and seed (assets/resilience/, the app's page), round by round, though they trained in other sweeps, at
-    other commits, on other machines. `bench seeds --at-iteration 40` on the 100-round file prints the same P and
-    AER as `bench seeds` on the 40-round one."""
+@pytest.mark.parametrize("env,row,longer", [
+    ("lunarlander", "IUPE", "tables-7.2-7.6-lunarlander-iupe-100-iterations.jsonl"),
+    ("cartpole", "GAIL", "tables-7.2-7.6-cartpole-gail-100-iterations.jsonl")])
+def test_a_longer_shipped_training_begins_with_the_shorter_one_of_the_same_seed(env, row, longer):
+    """Same seed, same numbers: IUPE's and GAIL's schedules do not depend on their round count, so the first 40
+    rounds of each shipped 100-round training (docs/reproduction/) are the shipped 40-round training of its level
+    and seed (assets/resilience/, the app's page), round by round, though they trained in other sweeps, at other
+    commits. `bench seeds --at-iteration 40` on the 100-round file prints the same P and AER as `bench seeds` on
+    the 40-round one."""
     from ifo.reproduce.chapter7 import shipped_results_path
     from ifo.sweep import read_rows
 
-    def curves(path, iterations):  # (table, seed) -> curve, of IUPE on all the level's demonstrations
+    def curves(path, iterations):  # (table, seed) -> curve, of the row on all the level's demonstrations
         return {(r["spec"]["table"], r["spec"]["seed"]): r["result"]["curve"] for r in read_rows(path)
-                if r.get("status") == "done" and r["spec"]["row"] == "IUPE" and r["spec"]["iterations"] == iterations
-                and set(r["spec"]["settings"]) == {"expert_level"} and not r["spec"]["overrides"]}
+                if r.get("status") == "done" and r["spec"]["row"] == row and r["spec"]["iterations"] == iterations
+                and r["spec"]["env"] == env and set(r["spec"]["settings"]) == {"expert_level"}
+                and not r["spec"]["overrides"]}
 
-    long = curves(ROOT / "docs/reproduction/tables-7.2-7.6-lunarlander-iupe-100-iterations.jsonl", 100)
-    short = curves(shipped_results_path("lunarlander"), 40)
+    long = curves(ROOT / "docs/reproduction" / longer, 100)
+    short = curves(shipped_results_path(env), 40)
     assert len(long) == 50 and long.keys() <= short.keys()  # five levels × ten seeds
     differ = sorted(key for key in long if long[key][:40] != short[key])
     assert differ == [], f"(table, seed) whose 100-round training does not begin with its 40-round one: {differ}"
