@@ -359,16 +359,16 @@ def recheck(stored: list[dict], rounds: int, seeds: int, envs: list[str] | None 
             continue
         n, compared = task.spec["iterations"], compared + 1
         old, new = r["result"]["curve"][:n], again["result"]["curve"][:n]
-        differ = next((i for i, (a, b) in enumerate(zip(old, new))
-                       if any(a.get(k) != b.get(k) for k in RECHECKED)), None)
-        if differ is None:
+        parts_at = next((at for at, (was, now) in enumerate(zip(old, new))
+                         if any(was.get(k) != now.get(k) for k in RECHECKED)), None)
+        if parts_at is None:
             same += 1
             lines.append(head + f"{n} | yes |")
         else:
-            a, b = old[differ], new[differ]
+            a, b = old[parts_at], new[parts_at]
             parted = "; ".join(f"stored {name} {_digits(a.get(k), b.get(k))}, now {_digits(b.get(k), a.get(k))}"
                                for k, name in RECHECKED.items() if a.get(k) != b.get(k))
-            lines.append(head + f"{n} | **no**, from round {differ + 1}: {parted} |")
+            lines.append(head + f"{n} | **no**, from round {parts_at + 1}: {parted} |")
     where = machine()
     lines.append("")
     lines.append(f"{same} of {compared} trainings trained again to their stored numbers, round by round, with "
