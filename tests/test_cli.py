@@ -363,3 +363,23 @@ def test_bench_recheck_trains_stored_trainings_again_and_says_which_come_back(tm
     assert "needs --store" in capsys.readouterr().err
     assert main(argv[:-1] + ["--rounds", "0"]) == 2
     assert "--rounds must be 1..1000" in capsys.readouterr().err
+
+
+def test_bench_recheck_leaves_out_a_training_whose_rounds_follow_its_round_count(tmp_path, capsys):
+    """CRIL's Eq 8.2 reaches its share limit at the run's last iteration (share_n defaults to the iteration count),
+    so a 1-round CRIL is not the start of a 2-round one: recheck says so instead of reporting a false difference,
+    and rechecks it when asked for all its rounds or when share_n is fixed."""
+    from ifo.cli import main
+    from ifo.learners.cril import CRILLearner
+    from ifo.reproduce import reproduce
+
+    assert CRILLearner.Config().follows_iteration_count() and not CRILLearner.Config(share_n=5).follows_iteration_count()
+    store = tmp_path / "table.jsonl"
+    reproduce("8.2", seeds=1, envs=["cartpole"], iterations=2, rows=["CRIL"], log=lambda m: None, store=str(store),
+              progress=False, eval_episodes=5)
+    argv = ["bench", "recheck", "--store", str(store), "--seeds", "1", "--local"]
+    assert main(argv + ["--rounds", "1"]) == 0
+    assert "| — | not rechecked: its schedule follows its round count: give --rounds its iterations |" in \
+        capsys.readouterr().out
+    assert main(argv + ["--rounds", "2"]) == 0
+    assert "| 8.2 | CRIL | cartpole |" in (out := capsys.readouterr().out) and "| 2 | yes |" in out

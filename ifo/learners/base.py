@@ -61,6 +61,11 @@ class LearnerConfig:
         """Fields these settings make irrelevant (greyed out in the app)."""
         return set()
 
+    def follows_iteration_count(self) -> bool:
+        """Whether the run's iteration count changes what each iteration does. Then a shorter training is not
+        the start of a longer one (`bench recheck` trains such a row's whole count)."""
+        return False
+
     def resolved(self, preset: dict, spec: EnvSpec) -> "LearnerConfig":
         values = {}
         env = self.env_defaults(spec)

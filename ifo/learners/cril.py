@@ -77,6 +77,9 @@ class CRILConfig(BCOConfig):
                                            "iterations, or its loss no longer decreases (Sec 8.2)",
                                     title="Stop rule (Sec 8.2)")
 
+    def follows_iteration_count(self) -> bool:
+        return self.share_n is None  # Eq 8.2's n defaults to the run's iterations
+
     def env_defaults(self, spec) -> dict:
         return {**super().env_defaults(spec), "td_updates": 8, "episodes_per_iteration": 20}
 

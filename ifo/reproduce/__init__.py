@@ -297,14 +297,25 @@ def _digits(value, other) -> str:
     return next((f"{value:.{d}g}" for d in range(6, 17) if f"{value:.{d}g}" != f"{other:.{d}g}"), repr(value))
 
 
+def _follows_iteration_count(row: Row, spec: dict) -> bool:
+    """Whether a stored training's learner changes what each round does with the round count (CRIL's Eq 8.2)."""
+    from ifo.methods import METHODS
+
+    if row.method not in METHODS:
+        return False
+    cfg = RunConfig.from_dict({"env": spec["env"], "method": row.method, "seed": spec["seed"],
+                               "iterations": spec.get("iterations"), **row.overrides, **(spec.get("settings") or {})})
+    return cfg.resolved().learner.follows_iteration_count()
+
+
 def recheck(stored: list[dict], rounds: int, seeds: int, envs: list[str] | None = None,
             rows: list[str] | None = None, address: str | None = None, ray: bool = False,
             progress: bool = True) -> str:
     """Same seed, same numbers, checked after the fact: train again the first `rounds` rounds of stored
     trainings (seeds below `seeds`, of the chosen environments and rows) with this checkout's code, and
-    compare them, round by round, with the curves the store kept. A learner whose schedule does not depend on
-    its round count (every one but CRIL, whose share_n defaults to the run's rounds) gives its longer
-    training's first rounds; a difference means other code, or code run differently, made the stored row."""
+    compare them, round by round, with the curves the store kept. A learner whose schedule does not follow
+    its round count (`LearnerConfig.follows_iteration_count`) gives its longer training's first rounds; a
+    difference means other code, or code run differently, made the stored row."""
     import tempfile
 
     from ifo.sweep import ResultStore, code_commit, machine, run_sweep, where_trained
@@ -332,8 +343,8 @@ def recheck(stored: list[dict], rounds: int, seeds: int, envs: list[str] | None 
         n = min(rounds, len(r["result"]["curve"]))
         if row is None or dict(row.overrides) != spec.get("overrides", {}):
             why_not[i] = "its table no longer has this row with these settings"
-        elif spec.get("method") == "cril" and n < len(r["result"]["curve"]):
-            why_not[i] = "CRIL's schedule depends on its round count: give --rounds its iterations"
+        elif n < len(r["result"]["curve"]) and _follows_iteration_count(row, spec):
+            why_not[i] = "its schedule follows its round count: give --rounds its iterations"
         else:
             tasks[i] = row_task(table, row, spec["env"], spec["seed"], n, dict(spec.get("settings") or {}))
     with tempfile.TemporaryDirectory(prefix="ifo-recheck-") as scratch:
