@@ -26,10 +26,12 @@ killed mid-line) is skipped.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
 import os
+import platform
 import re
 import socket
 import subprocess
@@ -120,13 +122,29 @@ _CODE_WHEN_FIRST_RUN: dict[str, str] = {}  # checkout -> its fingerprint when th
 
 
 def machine() -> dict:
-    """Where a training ran. With torch loaded (a worker), also the CPU kernels torch chose (AVX2, AVX512, ...):
-    machines with different kernels round differently, and the same seed can train to other numbers there."""
+    """Where a training ran: the host, its processor's model and, with torch loaded (a worker), the CPU kernels
+    torch chose (AVX2, AVX512, ...). Machines round differently, and the same seed can train to other numbers
+    there: two machines with AVX512 kernels did (Ch. 7's Acrobot GAIL), so the kernels alone do not tell them apart."""
     out = {"hostname": socket.gethostname(), "cpus": os.cpu_count()}
+    if cpu_model():
+        out["cpu_model"] = cpu_model()
     torch = sys.modules.get("torch")
     if torch is not None:
         out["cpu_capability"] = torch.backends.cpu.get_cpu_capability()
     return out
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_model() -> str | None:
+    """The processor's model name ("AMD EPYC", "Intel(R) Xeon(R) Platinum 8375C CPU @ 2.90GHz"), None if unknown."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()[:120] or None
+    except OSError:
+        pass
+    return platform.processor()[:120] or None
 
 
 # ----------------------------------------------------------------------------- the store
@@ -416,7 +434,8 @@ def run_sweep(tasks: Sequence[Task], store: ResultStore, address: str | None = N
 def where_trained(row: dict) -> str:
     """The machine that trained a row (its worker's; rows before workers reported it: the driver's)."""
     where = row.get("machine") or row.get("driver") or {}
-    return f"{where.get('hostname', '?')}" + (f" ({where['cpu_capability']})" if where.get("cpu_capability") else "")
+    known = [str(where[k]) for k in ("cpu_model", "cpu_capability") if where.get(k)]
+    return f"{where.get('hostname', '?')}" + (f" ({', '.join(known)})" if known else "")
 
 
 LAST_ITERATIONS = 10  # bench seeds: P over this many last iterations tells a last-iteration dip from a failure

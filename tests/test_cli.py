@@ -266,6 +266,12 @@ def test_bench_seeds_lists_each_finished_training_of_a_store(tmp_path, capsys, m
     monkeypatch.setenv("IFO_TORCH_THREADS", "1")  # execute sets it: restored after the test
     ran = execute(lambda: {"aer": 1.0}, {})  # a worker says which CPU kernels trained its rows
     assert ran["machine"]["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    # and which processor: two machines with the same kernels trained the same seed to other numbers
+    from ifo.sweep import cpu_model, where_trained
+
+    assert ran["machine"].get("cpu_model") == cpu_model()
+    assert where_trained({"machine": {"hostname": "node-3", "cpu_model": "AMD EPYC", "cpu_capability": "AVX512"}}) \
+        == "node-3 (AMD EPYC, AVX512)"
 
 
 def test_train_takes_the_same_defaults_as_the_app_and_the_maze_protocol():

@@ -383,8 +383,7 @@ def recheck(stored: list[dict], rounds: int, seeds: int, envs: list[str] | None 
     where = machine()
     lines.append("")
     lines.append(f"{same} of {compared} trainings trained again to their stored numbers, round by round, with "
-                 f"this checkout's code ({(code_commit() or '?')[:7]}, {where.get('hostname')}, "
-                 f"{where.get('cpu_capability') or 'CPU kernels unknown'})"
+                 f"this checkout's code ({(code_commit() or '?')[:7]}, {where_trained({'machine': where})})"
                  + (f"; {report.line()}" if report else "") + ".")
     return "\n".join(lines)
 
