@@ -126,8 +126,8 @@ def machine() -> dict:
     torch chose (AVX2, AVX512, ...). Machines round differently, and the same seed can train to other numbers
     there: two machines with AVX512 kernels did (Ch. 7's Acrobot GAIL), so the kernels alone do not tell them apart."""
     out = {"hostname": socket.gethostname(), "cpus": os.cpu_count()}
-    if cpu_model():
-        out["cpu_model"] = cpu_model()
+    if model := cpu_model():
+        out["cpu_model"] = model
     torch = sys.modules.get("torch")
     if torch is not None:
         out["cpu_capability"] = torch.backends.cpu.get_cpu_capability()
