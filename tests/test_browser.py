@@ -624,7 +624,8 @@ def test_a_lesson_from_the_landing_page(app, page):
 # ----------------------------------------------------------------------------- 12. sub-optimal experts (Ch. 7)
 def test_the_resilience_page_draws_fig_7_1_and_runs_a_cell(app, page):
     """By the sidebar to "Sub-optimal experts": Fig 7.1 from the shipped CartPole results with fidelity
-    beside it, the longer budget (and the experts it has not trained a method on yet) and back, its SVG download, the expert levels; then
+    beside it, the longer budgets, 40 rounds and the thesis's 100 (and the methods or experts a budget has not
+    trained yet), and back, its SVG download, the expert levels; then
     one cell (BC on Expert⁵, 1 iteration) queued and finished on the page."""
     open_app(page, app)
     go_by_sidebar(page, "Sub-optimal experts")
@@ -642,6 +643,10 @@ def test_the_resilience_page_draws_fig_7_1_and_runs_a_cell(app, page):
     expect(ilpo_points).to_have_count(len({r["level"] for r in longer if r["method"] == "ILPO"}))
     gap_note = page.get_by_text("Not trained with this budget yet")  # a short line is named as a gap, not a result
     expect(gap_note).to_have_count(1 if ch7.missing_cells(longer) else 0)
+    page.get_by_text("100 iterations, all demonstrations:").click()  # the thesis's budget, from docs/reproduction/
+    expect(page.get_by_text(re.compile(r"iterations per run: 100\."))).to_be_visible()
+    expect(page.get_by_text(re.compile(r"trainings from .*cartpole-gail-100-iterations\.jsonl"))).to_be_visible()
+    expect(gap_note).to_have_count(1)  # BC and ILPO were not trained for 100 rounds
     page.get_by_text("5 iterations, 20 demonstrations: BC, GAIL, ILPO, IUPE").click()
     expect(page.get_by_text(re.compile(r"iterations per run: 5\."))).to_be_visible()
     expect(ilpo_points).to_have_count(5)

@@ -265,7 +265,7 @@ def test_two_shippers_at_once_keep_each_others_cells(tmp_path, monkeypatch):
 
 def test_the_shipped_results_are_read_again_when_the_file_changes(tmp_path, monkeypatch):
     path = tmp_path / "cartpole.jsonl"
-    monkeypatch.setattr(ch7, "shipped_results_path", lambda env: path)
+    monkeypatch.setattr(ch7, "shipped_results_paths", lambda env: [path])
     assert ch7.load_shipped_results("cartpole") == []
     ch7.ship_results(_store_rows(), tmp_path)
     first = ch7.load_shipped_results("cartpole")
@@ -273,6 +273,27 @@ def test_the_shipped_results_are_read_again_when_the_file_changes(tmp_path, monk
     assert -1e9 not in [r["aer"] for r in ch7.load_shipped_results("cartpole")]
     ch7.ship_results(_longer_budget_rows(), tmp_path)
     assert len(ch7.load_shipped_results("cartpole")) == len(first) + 3
+
+
+def test_the_thesis_budget_ships_beside_its_tables_and_a_training_in_two_files_counts_once(tmp_path, monkeypatch):
+    """The 100-round trainings ship beside their tables in docs/reproduction/, one file per method, and the
+    page reads them with its own file as one more budget. A training shipped to both (the same method, level,
+    seed and budget) is drawn once, from the page's own file, and every result names the file it came from."""
+    paths = ch7.shipped_results_paths("mountaincar")
+    assert paths[0] == ch7.shipped_results_path("mountaincar")
+    assert [p.name for p in paths[1:]] == ["tables-7.2-7.6-mountaincar-gail-100-iterations.jsonl",
+                                           "tables-7.2-7.6-mountaincar-iupe-100-iterations.jsonl"]
+    own, longer = tmp_path / "own.jsonl", tmp_path / "longer.jsonl"
+    rows = _longer_budget_rows()  # GAIL, 40 rounds
+    longer.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    twice = {**rows[-1], "result": {**rows[-1]["result"], "aer": 123.0}}  # shipped to the page's file as well
+    own.write_text(json.dumps(twice) + "\n")
+    monkeypatch.setattr(ch7, "shipped_results_paths", lambda env: [own, longer])
+    results = ch7.load_shipped_results("cartpole")
+    assert len(results) == len(ch7.results_from_rows(rows))
+    mine = [r for r in results if r["source"] == str(own)]
+    assert len(mine) == 1 and mine[0]["aer"] == 123.0
+    assert {r["source"] for r in results} == {str(own), str(longer)}
 
 
 def test_a_live_cell_is_a_plain_run_config_on_that_levels_demonstrations():
@@ -315,7 +336,7 @@ def chart_names(at: AppTest, key: str) -> list[str]:
 def test_the_page_draws_fig_7_1_with_fidelity_beside_it(app_env, monkeypatch):
     path = app_env / "cartpole.jsonl"
     path.write_text("".join(json.dumps(r) + "\n" for r in _store_rows()))
-    monkeypatch.setattr(ch7, "shipped_results_path", lambda env: path if env == "cartpole" else app_env / "none.jsonl")
+    monkeypatch.setattr(ch7, "shipped_results_paths", lambda env: [path if env == "cartpole" else app_env / "none.jsonl"])
     at = open_page("resiltest01")
     assert at.title[0].value == "Resilience to sub-optimal experts"
     assert chart_names(at, "resilience.aer") == ["expert", "BC", "IUPE"]
@@ -340,7 +361,7 @@ def test_the_page_draws_fig_7_1_with_fidelity_beside_it(app_env, monkeypatch):
 def test_the_page_offers_each_shipped_budget_and_draws_one_at_a_time(app_env, monkeypatch):
     path = app_env / "cartpole.jsonl"
     ch7.ship_results(_store_rows() + _longer_budget_rows(), app_env)
-    monkeypatch.setattr(ch7, "shipped_results_path", lambda env: path if env == "cartpole" else app_env / "none.jsonl")
+    monkeypatch.setattr(ch7, "shipped_results_paths", lambda env: [path if env == "cartpole" else app_env / "none.jsonl"])
     at = open_page("resiltest03")
     budget = at.radio(key="resilience.budget.cartpole")
     assert budget.options == ["5 iterations, all demonstrations: BC, IUPE", "40 iterations, all demonstrations: GAIL"]
@@ -361,6 +382,27 @@ def test_the_page_offers_each_shipped_budget_and_draws_one_at_a_time(app_env, mo
     assert any("None of the chosen methods was trained with this budget" in i.value for i in at.info)
     at.selectbox(key="resilience.env").set_value("acrobot").run()
     assert not at.exception and [r.key for r in at.radio] == ["resilience.metric"]  # no budget to choose
+
+
+def test_the_page_offers_the_thesis_100_rounds_from_the_files_beside_the_tables(app_env):
+    """MountainCar's GAIL fails with 40 rounds and learns with the thesis's 100: a teacher shows both on the
+    page, from the shipped files, with every seed of every cell, and the page says which files it drew."""
+    at = open_page("resiltest05")
+    at.selectbox(key="resilience.env").set_value("mountaincar").run()
+    budget = at.radio(key="resilience.budget.mountaincar")
+    assert budget.options[-1] == "100 iterations, all demonstrations: GAIL, IUPE"
+    budget.set_value((100, None)).run()
+    assert not at.exception
+    assert chart_names(at, "resilience.aer") == ["expert", "GAIL", "IUPE"]
+    caption = next(c.value for c in at.caption if "trainings from" in c.value)
+    assert caption.startswith("100 trainings from `docs/reproduction/tables-7.2-7.6-mountaincar-gail-100-iterations"
+                              ".jsonl`, `docs/reproduction/tables-7.2-7.6-mountaincar-iupe-100-iterations.jsonl`")
+    assert "iterations per run: 100." in caption
+    shown = ch7.in_budget(ch7.load_shipped_results("mountaincar"), (100, None))
+    cells = {(s["method"], s["level"]): s for s in ch7.summary(shown, "mountaincar")}
+    assert cells[("GAIL", 1)]["aer"][0] > -150  # learns with Expert¹ (40 rounds: about -198)
+    gaps = [i.value for i in at.info if i.value.startswith("Not trained with this budget yet")]
+    assert len(gaps) == 1 and "BC on every expert; ILPO on every expert" in gaps[0]
 
 
 def test_a_link_opens_the_study_on_the_environment_it_names(app_env):

@@ -43,7 +43,8 @@ if len(budgets) > 1:  # e.g. every method with 5 rounds, and GAIL again with 40
     budget = st.radio("Training budget", budgets, format_func=lambda b: ch7.budget_label(every_budget, b),
                       key=f"resilience.budget.{env}", **URL,
                       help="Iterations and demonstration episodes per training ('all': every episode the level "
-                           "ships, see the expert levels below). Adversarial learners (GAIL) need many more rounds "
+                           "ships, see the expert levels below). The thesis trained 100; the methods listed with 100 "
+                           "iterations ship at that budget too. Adversarial learners (GAIL) need many more rounds "
                            "than the others: a short budget says more about that than about the expert.")
     shipped = ch7.in_budget(every_budget, budget)
 results = [r for r in shipped if r["method"] in methods or r["reference"]]
@@ -55,7 +56,8 @@ elif not any(not r["reference"] for r in results):
 else:
     iters = sorted({r["iterations"] for r in results if r["iterations"]})
     runs = len([r for r in results if not r["reference"]])
-    st.caption(f"{runs} trainings from `assets/resilience/{env}.jsonl`; iterations per run: "
+    sources = sorted({r["source"] for r in results if not r["reference"]})
+    st.caption(f"{runs} trainings from {', '.join(f'`{s}`' for s in sources)}; iterations per run: "
                f"{', '.join(map(str, iters)) or 'per-method defaults'}. Bars: one sd over seeds.")
     gaps = ch7.missing_cells_text(shipped, env, methods)
     if gaps:

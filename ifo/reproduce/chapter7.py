@@ -535,20 +535,45 @@ def shipped_results_path(env: str):
     return ASSETS / "resilience" / f"{env}.jsonl"
 
 
-_SHIPPED = BoundedCache(8)  # flat shipped results, by the file's stamp
+def shipped_results_paths(env: str) -> list:
+    """Every shipped Chapter 7 results file of `env`: the page's own (what `--ship` writes), then the
+    trainings at the thesis's 100 rounds, which ship beside their tables in docs/reproduction/ (one file
+    per method, each as large as the page's own; docs/REPRODUCTION.md lists them)."""
+    from ifo.envs import ASSETS
+
+    longer = sorted((ASSETS.parent / "docs" / "reproduction").glob(f"tables-7.2-7.6-{env}-*-100-iterations.jsonl"))
+    return [shipped_results_path(env), *longer]
+
+
+_SHIPPED = BoundedCache(8)  # flat shipped results, by the files' stamps
+
+
+def _training(result: dict) -> tuple:
+    return result["method"], result["level"], result["seed"], result["iterations"], result["expert_episodes"]
 
 
 def load_shipped_results(env: str) -> list[dict]:
-    """The shipped Chapter 7 results of `env` (assets/resilience/<env>.jsonl, size-checked), flat; [] if none.
-    Parsed once per version of the file and process (the page reruns on every click); each caller gets
-    its own dicts."""
+    """The shipped Chapter 7 results of `env` (`shipped_results_paths`, each size-checked), flat, each with
+    the file it came from (`source`); [] if none. A training found in two files (same method, level, seed
+    and budget) counts once, from the first file. Parsed once per version of the files and process (the page
+    reruns on every click); each caller gets its own dicts."""
+    from ifo.envs import ASSETS
     from ifo.sweep import read_rows
 
-    path = shipped_results_path(env)
-    stamp = file_stamp(path)
-    if stamp is None:
+    paths = [path for path in shipped_results_paths(env) if file_stamp(path) is not None]
+    if not paths:
         return []
-    return [dict(r) for r in _SHIPPED.get_or_build(stamp, lambda: results_from_rows(read_rows(path)))]
+
+    def build() -> list[dict]:
+        out, earlier = [], set()
+        for path in paths:
+            source = path.relative_to(ASSETS.parent).as_posix() if path.is_relative_to(ASSETS.parent) else str(path)
+            results = results_from_rows(read_rows(path))
+            out += [{**r, "source": source} for r in results if _training(r) not in earlier]
+            earlier |= {_training(r) for r in results}
+        return out
+
+    return [dict(r) for r in _SHIPPED.get_or_build(tuple(map(file_stamp, paths)), build)]
 
 
 def thesis_curves(env: str, methods=None) -> dict[str, list[tuple[float, float]]]:
