@@ -539,9 +539,9 @@ def shipped_results_paths(env: str) -> list:
     """Every shipped Chapter 7 results file of `env`: the page's own (what `--ship` writes), then the
     trainings at the thesis's 100 rounds, which ship beside their tables in docs/reproduction/ (one file
     per method, each as large as the page's own; docs/REPRODUCTION.md lists them)."""
-    from ifo.envs import ASSETS
+    from ifo.sweep import ROOT
 
-    longer = sorted((ASSETS.parent / "docs" / "reproduction").glob(f"tables-7.2-7.6-{env}-*-100-iterations.jsonl"))
+    longer = sorted((ROOT / "docs" / "reproduction").glob(f"tables-7.2-7.6-{env}-*-100-iterations.jsonl"))
     return [shipped_results_path(env), *longer]
 
 
@@ -557,23 +557,22 @@ def load_shipped_results(env: str) -> list[dict]:
     the file it came from (`source`); [] if none. A training found in two files (same method, level, seed
     and budget) counts once, from the first file. Parsed once per version of the files and process (the page
     reruns on every click); each caller gets its own dicts."""
-    from ifo.envs import ASSETS
-    from ifo.sweep import read_rows
+    from ifo.sweep import ROOT, read_rows
 
-    paths = [path for path in shipped_results_paths(env) if file_stamp(path) is not None]
-    if not paths:
+    stamps = {path: stamp for path in shipped_results_paths(env) if (stamp := file_stamp(path)) is not None}
+    if not stamps:
         return []
 
     def build() -> list[dict]:
         out, earlier = [], set()
-        for path in paths:
-            source = path.relative_to(ASSETS.parent).as_posix() if path.is_relative_to(ASSETS.parent) else str(path)
+        for path in stamps:
+            source = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else str(path)
             results = results_from_rows(read_rows(path))
             out += [{**r, "source": source} for r in results if _training(r) not in earlier]
             earlier |= {_training(r) for r in results}
         return out
 
-    return [dict(r) for r in _SHIPPED.get_or_build(tuple(map(file_stamp, paths)), build)]
+    return [dict(r) for r in _SHIPPED.get_or_build(tuple(stamps.values()), build)]
 
 
 def thesis_curves(env: str, methods=None) -> dict[str, list[tuple[float, float]]]:
