@@ -144,7 +144,7 @@ def test_a_longer_shipped_training_begins_with_the_shorter_one_of_the_same_seed(
     and seed (assets/resilience/, the app's page), round by round, though they trained in other sweeps, at other
     commits. `bench seeds --at-iteration 40` on the 100-round file prints the same P and AER as `bench seeds` on
     the 40-round one. Acrobot's BC file is left out: its 40-round rows trained on another processor, and on this
-    one the same seeds part at rounds 1 to 26 (docs/REPRODUCTION.md)."""
+    one every seed's curve differs somewhere in its first 40 rounds (docs/REPRODUCTION.md)."""
     from ifo.reproduce.chapter7 import shipped_results_path
     from ifo.sweep import read_rows
 
