@@ -137,7 +137,8 @@ def test_a_table_whose_results_ship_is_what_its_command_prints_from_them(where, 
     ("mountaincar", "IUPE", "tables-7.2-7.6-mountaincar-iupe-100-iterations.jsonl"),
     ("acrobot", "IUPE", "tables-7.2-7.6-acrobot-iupe-100-iterations.jsonl"),
     ("cartpole", "IUPE", "tables-7.2-7.6-cartpole-iupe-100-iterations.jsonl"),
-    ("mountaincar", "BC", "tables-7.2-7.6-mountaincar-bc-100-iterations.jsonl")])
+    ("mountaincar", "BC", "tables-7.2-7.6-mountaincar-bc-100-iterations.jsonl"),
+    ("cartpole", "BC", "tables-7.2-7.6-cartpole-bc-100-iterations.jsonl")])
 def test_a_longer_shipped_training_begins_with_the_shorter_one_of_the_same_seed(env, row, longer):
     """Same seed, same numbers: IUPE's, GAIL's and BC's schedules do not depend on their round count, so the first 40
     rounds of each shipped 100-round training (docs/reproduction/) are the shipped 40-round training of its level
