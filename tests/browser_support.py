@@ -265,3 +265,29 @@ def download(page, button, timeout: float = LONG_MS) -> bytes:
     with page.expect_download(timeout=timeout) as info:
         button.locator("button").first.click()
     return Path(info.value.path()).read_bytes()
+
+
+class SlowServer:
+    """The page's connection to the app server, whose messages to the page can be held back: what a page
+    meets on a busy server or a slow network, where a second click leaves before the first one's page has
+    arrived (the browser then sends the widgets as it still shows them). Playwright's WebSocket routing:
+    the page's messages go through at once; `hold()` keeps the server's, `release()` delivers them in order."""
+
+    def __init__(self, page):
+        self.holding, self.held, self.route = False, [], None
+        page.route_web_socket(re.compile(r".*/_stcore/stream.*"), self._connect)
+
+    def _connect(self, ws) -> None:
+        server = ws.connect_to_server()
+        self.route = ws
+        ws.on_message(server.send)
+        server.on_message(lambda message: self.held.append(message) if self.holding else ws.send(message))
+
+    def hold(self) -> None:
+        self.holding = True
+
+    def release(self) -> None:
+        self.holding = False
+        held, self.held = self.held, []
+        for message in held:
+            self.route.send(message)

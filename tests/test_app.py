@@ -250,7 +250,7 @@ def test_toggling_exploration_asks_then_starts_a_new_run_with_it():
     at = open_step_page()
     at.button(key="step").click().run()
     assert "panel.exploration" not in chart_keys(at)
-    at.toggle(key="step.explore_labels").set_value(True).run()
+    at.toggle(key="step.bco-alpha.explore_labels").set_value(True).run()
     assert not at.exception
     assert counter(at) == "Iteration 1 of 10" and at.button(key="step").disabled  # asked first
     at.button(key="branch_new").click().run()
@@ -265,10 +265,27 @@ def test_toggling_exploration_asks_then_starts_a_new_run_with_it():
 def test_choosing_a_method_sets_its_switches():
     at = open_step_page()
     at.selectbox(key="step.method").select("iupe").run()
-    assert at.selectbox(key="step.attention").value == "gated"
-    assert at.selectbox(key="step.sampling").value == "iupe"
-    assert at.toggle(key="step.explore_labels").value and at.toggle(key="step.explore_rollouts").value
+    assert at.selectbox(key="step.iupe.attention").value == "gated"
+    assert at.selectbox(key="step.iupe.sampling").value == "iupe"
+    assert at.toggle(key="step.iupe.explore_labels").value and at.toggle(key="step.iupe.explore_rollouts").value
     assert slot(at).run.config.method == "iupe"
+
+
+def test_each_method_keeps_its_own_switches():
+    """A switch changed for one method is that method's: BCO(α) starts with its own preset beside it, and
+    IUPE has the change again when the teacher comes back to it."""
+    at = open_step_page()
+    at.selectbox(key="step.method").select("iupe").run()
+    at.toggle(key="step.iupe.explore_rollouts").set_value(False).run()
+    at.selectbox(key="step.method").select("bco-alpha").run()
+    assert at.selectbox(key="step.bco-alpha.sampling").value == "none"  # BCO(α)'s own
+    assert not at.toggle(key="step.bco-alpha.explore_labels").value
+    at.selectbox(key="step.method").select("iupe").run()
+    assert not at.exception
+    assert at.toggle(key="step.iupe.explore_labels").value is True  # IUPE's preset
+    assert at.toggle(key="step.iupe.explore_rollouts").value is False  # and the teacher's change
+    cfg = slot(at).run.config
+    assert (cfg.method, cfg.learner.explore_labels, cfg.learner.explore_rollouts) == ("iupe", True, False)
 
 
 def test_a_preset_applies_its_components():
@@ -277,9 +294,9 @@ def test_a_preset_applies_its_components():
     assert not at.exception
     assert at.selectbox(key="step.preset").value is None  # it applies, then waits for the next choice
     assert at.selectbox(key="step.method").value == "bco-alpha"
-    assert at.selectbox(key="step.attention").value == "none"
-    assert at.selectbox(key="step.sampling").value == "iupe"
-    assert at.toggle(key="step.explore_labels").value and at.toggle(key="step.explore_rollouts").value
+    assert at.selectbox(key="step.bco-alpha.attention").value == "none"
+    assert at.selectbox(key="step.bco-alpha.sampling").value == "iupe"
+    assert at.toggle(key="step.bco-alpha.explore_labels").value and at.toggle(key="step.bco-alpha.explore_rollouts").value
     cfg = slot(at).run.config
     assert (cfg.learner.attention, cfg.learner.sampling, cfg.learner.explore_labels, cfg.learner.explore_rollouts) == ("none", "iupe", True, True)
     captions = " ".join(c.value for c in at.sidebar.caption)
@@ -291,14 +308,29 @@ def test_a_preset_applies_its_components():
 
 
 def test_url_params_set_the_widgets():
-    at = open_step_page(**{"step.method": "IUPE", "step.seed": "3", "step.explore_rollouts": "false",
+    at = open_step_page(**{"step.method": "IUPE", "step.seed": "3", "step.iupe.explore_rollouts": "false",
                            "step.eval_explore": "actions sampled from π"})
     assert at.selectbox(key="step.method").value == "iupe"
     assert at.number_input(key="step.seed").value == 3
-    assert at.toggle(key="step.explore_labels").value is True  # IUPE's own choice
-    assert at.toggle(key="step.explore_rollouts").value is False  # the link's
+    assert at.toggle(key="step.iupe.explore_labels").value is True  # IUPE's own choice
+    assert at.toggle(key="step.iupe.explore_rollouts").value is False  # the link's
     cfg = slot(at).run.config
     assert (cfg.method, cfg.seed, cfg.learner.explore_rollouts, cfg.eval_explore) == ("iupe", 3, False, True)
+
+
+@pytest.mark.parametrize("hide", [None, "settings"])
+def test_a_link_from_before_each_method_kept_its_switches_still_sets_them(hide):
+    """`?step.explore_rollouts=false` (a switch named without its method, as links were made before) still
+    turns IUPE's switch off, with the settings shown or hidden; shown, the URL takes the new name."""
+    query = {"step.method": "IUPE", "step.explore_rollouts": "false", "step.sampling": "none"}
+    at = open_step_page(**(query if hide is None else {**query, "hide": hide}))
+    assert not at.exception
+    cfg = slot(at).run.config
+    assert (cfg.method, cfg.learner.explore_labels, cfg.learner.explore_rollouts, cfg.learner.sampling) == \
+        ("iupe", True, False, "none")
+    if hide is None:
+        assert at.toggle(key="step.iupe.explore_rollouts").value is False
+        assert "step.explore_rollouts" not in at.query_params and at.query_params["step.iupe.explore_rollouts"] == ["false"]
 
 
 def test_hide_removes_settings_and_panels_for_a_lesson():
@@ -548,7 +580,7 @@ def test_toggling_a_switch_mid_run_can_branch_from_this_iteration():
     for _ in range(2):
         at.button(key="step").click().run()
     parent = slot(at).run
-    at.selectbox(key="step.sampling").select("iupe").run()
+    at.selectbox(key="step.bco-alpha.sampling").select("iupe").run()
     assert any("as a branch" in m.value for m in at.markdown)
     at.button(key="branch").click().run()
     assert not at.exception and not at.error

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 pytest.register_assert_rewrite("browser_support")
-from browser_support import (CHART, LONG_MS, MAIN, ROOT, choose, counter, download, error_boxes, go_by_sidebar,
-                             iteration_shown, open_app, query, sidebar, step, type_number, user_of,
+from browser_support import (CHART, LONG_MS, MAIN, ROOT, SlowServer, choose, counter, download, error_boxes,
+                             go_by_sidebar, iteration_shown, open_app, query, sidebar, step, type_number, user_of,
                              wait_idle)  # noqa: E402
 from method_charts import chart_titles  # noqa: E402
 
@@ -215,6 +215,34 @@ def test_the_teachers_next_step_on_cartpole_is_ready_after_arriving_by_the_sideb
     expect(page.get_by_text("Iteration 2 was ready when Step was pressed")).to_be_visible()
     expect(error_boxes(page)).to_have_count(0)
     expect(page.locator(CHART).filter(has_text="Average episodic reward")).to_have_count(1)
+
+
+@pytest.mark.parametrize("box", ["Method", "Preset"])
+def test_a_method_then_a_seed_chosen_before_the_page_caught_up_make_that_methods_run(app, page, box):
+    """On a busy server a teacher chooses IUPE (by the method, or by the thesis's preset) and types seed 18
+    before the first choice's page has come back, so the browser sends the seed beside the switches it
+    still shows (BCO(α)'s). The run is IUPE's with IUPE's switches, as the boxes say. It once ran "BCO(α)
+    on CartPole, seed 18" under a box saying IUPE: the method's switches, written for it, were lost."""
+    slow = SlowServer(page)
+    open_app(page, app, "step")
+    expect(page.get_by_text("Current run: BCO(α) on CartPole, seed 0")).to_be_visible()
+    slow.hold()
+    sidebar(page).get_by_role("combobox", name=box).click()
+    page.get_by_role("option", name="IUPE", exact=True).click()
+    page.wait_for_timeout(2000)  # the server has drawn IUPE's page; the browser has not had it
+    seed = sidebar(page).get_by_role("spinbutton", name="Seed")
+    seed.fill("18")
+    seed.press("Enter")
+    page.wait_for_timeout(1000)
+    slow.release()
+    page.wait_for_timeout(500)
+    wait_idle(page, LONG_MS)
+    expect(page.get_by_text("Current run: IUPE on CartPole, seed 18")).to_be_visible()
+    expect(sidebar(page).get_by_role("combobox", name="Method")).to_have_value("IUPE")
+    expect(sidebar(page).get_by_role("switch", name="Explore: sample the labels")).to_be_checked()
+    expect(page).to_have_url(re.compile(r"step\.method=IUPE.*step\.seed=18|step\.seed=18.*step\.method=IUPE"))
+    step(page, 1)
+    expect(error_boxes(page)).to_have_count(0)
 
 
 def test_the_teachers_next_step_on_a_maze_is_ready_while_the_class_looks(app, page):

@@ -6,7 +6,10 @@ command line and the checks never drift apart.
   first; then the learner's switches (for the BCO family: attention, sampling, exploration),
   then "More settings" (sizes, learning rate, ...), where an empty box means "the method's or
   the environment's default".
-- Choosing a method sets its switches to the method's preset; a *preset* sets a method and
+- Each method keeps its own switches (their keys hold the method, `step.iupe.sampling`), which
+  start at the method's preset: choosing a method writes no other widget. (A method's callback
+  that wrote its switches was lost when the browser sent its next change before the page of the
+  first arrived, on a busy server: IUPE ran with BCO(α)'s switches.) A *preset* sets a method and
   its switches at once: the thesis's methods and the ablation rows of Tables 5.2 and 6.2
   (taken from `ifo.reproduce.TABLES`, one source of truth).
 - With `bind=True` every widget keeps its value in the page's URL (`bind="query-params"`, the
@@ -140,8 +143,18 @@ def iterations_key(key: str, env: str, method: str) -> str:
     return f"{key}.iterations.{env}.{method}"
 
 
+def switch_key(key: str, method: str, name: str) -> str:
+    return f"{key}.{method}.{name}"
+
+
+def _switch_names(method: str) -> set[str]:
+    return {s.name for s in specs(get_method(method).learner_class.Config) if not s.advanced}
+
+
 def _widget_key(key: str, name: str, env: str, method: str) -> str:
-    return iterations_key(key, env, method) if name == "iterations" else _k(key, name)
+    if name == "iterations":
+        return iterations_key(key, env, method)
+    return switch_key(key, method, name) if name in _switch_names(method) else _k(key, name)
 
 
 def set_widgets(key: str, choice: Choice) -> None:
@@ -169,20 +182,13 @@ def _all_specs(method: str) -> tuple[Spec, ...]:
     return specs(RunConfig) + specs(get_method(method).learner_class.Config)
 
 
-def _apply_method(key: str) -> None:
-    """The method selectbox changed: its switches follow its preset."""
-    method = st.session_state[_k(key, "method")]
-    for name, value in switches(RunConfig(method=method).resolved()).items():
-        st.session_state[_k(key, name)] = value
-
-
 def _apply_preset(key: str) -> None:
     name = st.session_state.get(_k(key, "preset"))
     if name in PRESETS:
         preset = PRESETS[name]
         st.session_state[_k(key, "method")] = preset.method
         for switch, value in preset.switches.items():
-            st.session_state[_k(key, switch)] = value
+            st.session_state[switch_key(key, preset.method, switch)] = value
     st.session_state[_k(key, "preset")] = None  # the selectbox only applies; the caption says what matches
 
 
@@ -196,6 +202,32 @@ def link_by_name(widget_key: str, choices, label) -> None:
     by_name = {str(c): c for c in choices if c is not None}
     if value in by_name and value not in {str(label(c)) for c in by_name.values()}:
         st.session_state[widget_key] = by_name[value]
+
+
+def link_by_old_name(widget_key: str, old_key: str, s: Spec) -> None:
+    """A link made before each method kept its own switches names a switch without the method
+    (`?step.explore_rollouts=false`): the switch starts with the link's value, and the URL takes the new name."""
+    value = st.query_params.get(old_key)
+    if value is None:
+        return
+    del st.query_params[old_key]
+    parsed = url_value(s, value)
+    if parsed is not None and widget_key not in st.session_state:
+        st.session_state[widget_key] = parsed
+        st.query_params[widget_key] = value  # the text the widget writes: a reload keeps the switch
+
+
+def url_value(s: Spec, text: str):
+    """A URL parameter's text as the field's value (a label, a bool, a number), or None if it is none of them."""
+    by_label = {str(label): value for value, label in s.labels.items()}
+    if text in by_label:
+        return by_label[text]
+    try:
+        value = {bool: lambda t: str(t).lower() in ("true", "1"), int: int, float: float}.get(s.kind, str)(text)
+        check_field(s, value)
+        return value
+    except (ValueError, TypeError):
+        return None
 
 
 def _widget(s: Spec, key: str, default, bind: dict, disabled: bool = False, optional: bool = False):
@@ -262,7 +294,7 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches_show
         env = st.selectbox("Environment", list(ENVS), format_func=env_label, key=_k(key, "env"), **b,
                            help="The task the expert demonstrated. Only its states are given to the learner.")
         method = st.selectbox("Method", list(METHODS), format_func=method_label, key=_k(key, "method"),
-                              index=list(METHODS).index("bco-alpha"), on_change=_apply_method, args=(key,), **b)
+                              index=list(METHODS).index("bco-alpha"), **b)
         st.caption(METHODS[method].summary)
         defaults = resolved_defaults(env, method)
         values = {"env": env, "method": method}
@@ -312,8 +344,12 @@ def _switch_widgets(key: str, method: str, defaults: dict, run_specs: dict, b: d
                  help="Sets the method and its switches to a configuration of the thesis: its methods, "
                       "and the ablation rows of Tables 5.2 (ABCO) and 6.2 (IUPE).")
     unused = cls(**{s.name: defaults.get(s.name) for s in specs(cls)}).unused()
-    values = {s.name: _widget(s, _k(key, s.name), defaults[s.name], b, disabled=s.name in unused)
-              for s in switch_specs}
+    values = {}
+    for s in switch_specs:
+        widget_key = switch_key(key, method, s.name)
+        if b:
+            link_by_old_name(widget_key, _k(key, s.name), s)
+        values[s.name] = _widget(s, widget_key, defaults[s.name], b, disabled=s.name in unused)
     values["eval_explore"] = bool(_widget(run_specs["eval_explore"], _k(key, "eval_explore"), False, b))
     matches = matching_presets(method, values)
     env = st.session_state.get(_k(key, "env"))
@@ -355,23 +391,19 @@ def choice_without_widgets(key: str) -> Choice:
 
     def raw(name: str, widget_key: str | None = None):
         k = widget_key or _k(key, name)
-        return ("state", ss[k]) if k in ss else ("url", qp.get(k)) if qp.get(k) is not None else (None, None)
+        if k in ss:
+            return "state", ss[k]
+        for url_key in (k, _k(key, name)):  # a switch's name before it held the method (link_by_old_name)
+            if qp.get(url_key) is not None:
+                return "url", qp.get(url_key)
+        return None, None
 
     def pick(s: Spec, default, widget_key: str | None = None):
         where, v = raw(s.name, widget_key)
         if where == "state":
             return v
-        if where != "url":
-            return default
-        by_label = {str(label): value for value, label in s.labels.items()}
-        if v in by_label:
-            return by_label[v]
-        try:
-            value = {bool: lambda t: str(t).lower() in ("true", "1"), int: int, float: float}.get(s.kind, str)(v)
-            check_field(s, value)
-            return value
-        except (ValueError, TypeError):
-            return default
+        value = url_value(s, v) if where == "url" else None
+        return default if value is None else value
 
     run_specs = {s.name: s for s in specs(RunConfig)}
     env_spec = Spec("env", str, False, "cartpole", "", tuple(ENVS), None, None,
@@ -387,7 +419,7 @@ def choice_without_widgets(key: str) -> Choice:
         if s.name in values or s.name in NOT_WIDGETS + METHOD_FIELDS or (s.name in MAZE_ONLY
                                                                          and not get_env(env).is_maze):
             continue
-        value = pick(s, None if s.advanced else defaults.get(s.name))
+        value = pick(s, None if s.advanced else defaults.get(s.name), _widget_key(key, s.name, env, method))
         if isinstance(value, str) and s.kind is tuple:
             value = tuple(int(v) for v in value.split(",") if v.strip()) or None
         if value is not None:
