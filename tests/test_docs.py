@@ -144,8 +144,8 @@ def test_a_longer_shipped_training_begins_with_the_shorter_one_of_the_same_seed(
     rounds of each shipped 100-round training (docs/reproduction/) are the shipped 40-round training of its level
     and seed (assets/resilience/, the app's page), round by round, though they trained in other sweeps, at other
     commits. `bench seeds --at-iteration 40` on the 100-round file prints the same P and AER as `bench seeds` on
-    the 40-round one. Acrobot's BC file is left out: its 40-round rows trained on another processor, and on this
-    one every seed's curve differs somewhere in its first 40 rounds (docs/REPRODUCTION.md)."""
+    the 40-round one. Acrobot's and LunarLander's BC files are left out: every seed's 100-round curve differs from
+    its 40-round row somewhere in the first 40 rounds (Acrobot's rows trained on another processor; docs/REPRODUCTION.md)."""
     from ifo.reproduce.chapter7 import shipped_results_path
     from ifo.sweep import read_rows
 
