@@ -151,10 +151,15 @@ class RunConfig:
 
 
 # ----------------------------------------------------------------------------- names people read
+def switch_specs(learner_config_class) -> list:
+    """A learner configuration's switches (its settings that are not sizes): what makes one method another."""
+    return [s for s in specs(learner_config_class) if not s.advanced]
+
+
 def switches(config: RunConfig) -> dict:
-    """The learner's switches (its settings that are not sizes): what makes one method another."""
+    """The learner's switches and their values."""
     learner = config.learner if config.learner is not None else config.learner_config_class()
-    return {s.name: getattr(learner, s.name) for s in specs(type(learner)) if not s.advanced}
+    return {s.name: getattr(learner, s.name) for s in switch_specs(type(learner))}
 
 
 def configuration_label(config: RunConfig) -> str:

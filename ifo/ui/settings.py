@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import streamlit as st
 
-from ifo.config import MAZE_EVALUATION_FIELDS, RunConfig, switches
+from ifo.config import MAZE_EVALUATION_FIELDS, RunConfig, switch_specs, switches
 from ifo.envs import ENVS, get_env
 from ifo.methods import METHODS, get_method
 from ifo.options import Spec, check_field, heavier_than_default, specs
@@ -148,7 +148,7 @@ def switch_key(key: str, method: str, name: str) -> str:
 
 
 def _switch_names(method: str) -> set[str]:
-    return {s.name for s in specs(get_method(method).learner_class.Config) if not s.advanced}
+    return {s.name for s in switch_specs(get_method(method).learner_class.Config)}
 
 
 def _widget_key(key: str, name: str, env: str, method: str) -> str:
@@ -337,7 +337,6 @@ def _maze_widgets(key: str, run_specs: dict, defaults: dict, b: dict) -> dict:
 
 def _switch_widgets(key: str, method: str, defaults: dict, run_specs: dict, b: dict) -> dict:
     cls = get_method(method).learner_class.Config
-    switch_specs = [s for s in specs(cls) if not s.advanced]
     st.subheader("Components")
     st.selectbox("Preset", list(PRESETS), index=None, key=_k(key, "preset"), format_func=lambda p: PRESETS[p].label,
                  placeholder="Apply a thesis configuration...", on_change=_apply_preset, args=(key,),
@@ -345,7 +344,7 @@ def _switch_widgets(key: str, method: str, defaults: dict, run_specs: dict, b: d
                       "and the ablation rows of Tables 5.2 (ABCO) and 6.2 (IUPE).")
     unused = cls(**{s.name: defaults.get(s.name) for s in specs(cls)}).unused()
     values = {}
-    for s in switch_specs:
+    for s in switch_specs(cls):
         widget_key = switch_key(key, method, s.name)
         if b:
             link_by_old_name(widget_key, _k(key, s.name), s)
