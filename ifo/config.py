@@ -28,6 +28,7 @@ ENV_DEFAULTS: dict[str, dict] = {
     "maze5": dict(iterations=15, expert_episodes=100, rollout_max_steps=100),
     "maze10": dict(iterations=20, expert_episodes=100, rollout_max_steps=400),
 }
+REGISTERED_ENV_DEFAULTS = dict(iterations=10)  # a researcher's own environment: every demonstration they bring
 MAX_SEED = 2**32 - 1
 CONFIG_SCHEMA = 2  # 1: one flat dict (before learners had their own configuration)
 
@@ -91,7 +92,7 @@ class RunConfig:
         values = {}
         for s in specs(RunConfig):
             v = getattr(self, s.name)
-            for source in (method.run_defaults, ENV_DEFAULTS[spec.settings_name]):
+            for source in (method.run_defaults, ENV_DEFAULTS.get(spec.settings_name, REGISTERED_ENV_DEFAULTS)):
                 if v is None:
                     v = source.get(s.name)
             values[s.name] = v

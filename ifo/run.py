@@ -66,6 +66,8 @@ class Run:
                                          require_actions=self.method.sees_expert_actions)
                      if cfg.demos else load_shipped_demonstrations(spec, cfg.obs_mode, cfg.image_size,
                                                                    cfg.expert_episodes))
+        if cfg.expert_episodes is None:  # a registered environment: all the demonstrations brought
+            self.config = cfg = replace(cfg, expert_episodes=demos.n_episodes)
         if demos.n_episodes < cfg.expert_episodes:
             if config.expert_episodes is not None:  # asked for explicitly: say it cannot be had
                 raise ValueError(f"expert_episodes is {config.expert_episodes}, but the demonstrations hold only "
@@ -87,7 +89,7 @@ class Run:
         # shared iterations (ifo.iteration_cache): the key of this run's state; None: nothing shared
         # (a user's own demonstrations are not part of the key, so such runs never share)
         self.cache = cache
-        self.lineage: str | None = None if cfg.demos else lineage_start(self._identity())
+        self.lineage: str | None = None if cfg.demos or spec.registered else lineage_start(self._identity())
         self.last_step_cached = False
         # where iterations train: None here; an ifo.remote.RemoteTrainer sends them to Ray workers
         # (never a run on a user's own demonstrations: lineage None, the file stays here)
@@ -124,7 +126,7 @@ class Run:
             return {"random": np.asarray(layouts["random"])[idx], "expert": np.asarray(layouts["expert"])[idx],
                     "random_aer": refs.get("random_aer"), "expert_aer": refs.get("expert_aer")}
         expert = refs.get("expert_aer")
-        if self.config.demos:  # a user's demonstrator: normalise by what it achieved
+        if self.config.demos or self.spec.registered:  # a user's demonstrator: normalise by what it achieved
             expert = float(np.mean(self.demos.episode_returns))
         return {"random": refs.get("random_aer"), "expert": expert,
                 "random_aer": refs.get("random_aer"), "expert_aer": expert}

@@ -87,6 +87,9 @@ def load_shipped_demonstrations(spec: EnvSpec, obs_mode: str = "image", image_si
                                 episodes: int | None = None, level: int = 1) -> Demonstrations:
     """The shipped demonstrations (of expert level `level`, 1..5); maze frames are drawn for the first
     `episodes` only (all if None). Shared across callers in this process: the arrays are read-only."""
+    if spec.registered:
+        raise DemoError(f"IfO Lab ships no demonstrations for {spec.name}, an environment of your own: bring "
+                        "them (RunConfig(demos='FILE.npz'), --demos FILE.npz, or Run(config, demos=...))")
     if spec.is_maze and level != 1:
         raise DemoError(f"{spec.name} has one expert (shortest paths): no level {level}")
     path = level_demos_path(spec, level)

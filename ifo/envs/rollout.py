@@ -207,3 +207,17 @@ def run_episodes(pool: EnvPool, act: ActFn, seeds: Sequence[int], record: bool =
         non_map = np.zeros(0, dtype=bool)
         rewards = np.zeros(0)
     return Rollouts(states, acts, next_states, ep_idx.astype(np.int64), rewards, non_map, episodes, goals, frames)
+
+
+def random_returns(spec: EnvSpec, episodes: int = 100) -> np.ndarray:
+    """Returns of a uniformly random policy on the evaluation seeds (`ifo.seeds.EVAL_SEED_BASE` on):
+    the random reference of Performance (Eq 4.2)."""
+    from ifo.seeds import EVAL_SEED_BASE
+
+    rng = np.random.default_rng(0)
+
+    def act(obs):
+        a = rng.integers(0, spec.n_actions, size=len(obs))
+        return a, a
+
+    return run_episodes(EnvPool(spec), act, EVAL_SEED_BASE + np.arange(episodes), record=False).returns

@@ -18,7 +18,7 @@ import numpy as np
 
 from ifo.data.demos import shipped_actions_path, shipped_demos_path
 from ifo.envs import ASSETS, EnvSpec, get_env, load_references
-from ifo.envs.rollout import EnvPool, run_episodes
+from ifo.envs.rollout import EnvPool, random_returns, run_episodes
 from ifo.experts import load_expert
 from ifo.io import atomic_write_bytes, atomic_write_json, npz_bytes
 from ifo.seeds import EVAL_SEED_BASE
@@ -30,16 +30,6 @@ KEEP_THRESHOLD = {"cartpole": 475, "acrobot": -100, "mountaincar": -108, "lunarl
 def _greedy(expert):
     def act(obs):
         a = expert.act(obs)
-        return a, a
-
-    return act
-
-
-def _random(n_actions: int, seed: int):
-    rng = np.random.default_rng(seed)
-
-    def act(obs):
-        a = rng.integers(0, n_actions, size=len(obs))
         return a, a
 
     return act
@@ -157,7 +147,7 @@ def measure_references(env: str, episodes: int = 100, log=print) -> dict:
     else:
         seeds = EVAL_SEED_BASE + np.arange(episodes)
         pool = EnvPool(spec)
-        rnd = run_episodes(pool, _random(spec.n_actions, 0), seeds, record=False).returns
+        rnd = random_returns(spec, episodes)
         exp = run_episodes(pool, _greedy(load_expert(spec)), seeds, record=False).returns
         refs = {"random_aer": float(rnd.mean()), "random_std": float(rnd.std()),
                 "expert_aer": float(exp.mean()), "expert_std": float(exp.std()), "episodes": episodes}
