@@ -36,7 +36,8 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     with the field's own help and bounds; each learner's settings in a group of their own."""
     from ifo.options import add_arguments, specs
 
-    p.add_argument("--env", required=True, help=f"one of {', '.join(ENV_NAMES)} or a gymnasium id")
+    p.add_argument("--env", required=True, help=f"one of {', '.join(ENV_NAMES)}, a gymnasium id, or your own as "
+                                                    "module:name (ifo.envs.register_env)")
     p.add_argument("--method", required=True, help=f"one of {', '.join(METHODS)}")
     add_arguments(p.add_argument_group("run settings"), RunConfig, skip=("env", "method"))
     seen: set[str] = set()

@@ -39,8 +39,9 @@ MAZE_EVALUATION_FIELDS = ("maze_eval_layouts", "deadlock_guard")
 
 @dataclass(frozen=True)
 class RunConfig:
-    env: str = option("cartpole", f"the task the expert demonstrated: one of {', '.join(ENV_NAMES)}, or a "
-                                  "gymnasium id", title="Environment")
+    env: str = option("cartpole", f"the task the expert demonstrated: one of {', '.join(ENV_NAMES)}, a "
+                                  "gymnasium id, or your own as module:name (ifo.envs.register_env)",
+                      title="Environment")
     method: str = option("bco-alpha", "the method (see `ifo.methods`)", title="Method")
     seed: int = option(0, "same seed, same numbers", low=0, high=MAX_SEED, title="Seed")
     iterations: int | None = option(None, "α: how many presses of Step make a full run", low=1, high=10_000,
