@@ -33,6 +33,10 @@ class Parking(gym.Env):
 
     observation_space = gym.spaces.Box(np.array([0.0, -0.1, 0.0], np.float32), np.array([1.0, 0.1, 1.0], np.float32))
     action_space = gym.spaces.Discrete(3)
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(self, render_mode: str | None = None):
+        self.render_mode = render_mode
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -52,6 +56,15 @@ class Parking(gym.Env):
 
     def _obs(self) -> np.ndarray:
         return np.array([self.x, self.v, self.spot], dtype=np.float32)
+
+    def render(self) -> np.ndarray:
+        """The track (grey), the spot (green) and the car (blue) on it, 400 x 100 pixels."""
+        frame = np.full((100, 400, 3), 255, np.uint8)
+        frame[58:62] = 170
+        spot, car = (int(10 + 380 * p) for p in (self.spot, self.x))
+        frame[36:58, spot - 7:spot + 7] = (60, 170, 80)
+        frame[42:56, car - 10:car + 10] = (40, 90, 200)
+        return frame
 
 
 def controller(obs: np.ndarray) -> int:
@@ -84,7 +97,7 @@ def demonstrations(episodes: int = 50, seed: int = 0) -> dict[str, np.ndarray]:
 if GYM_ID not in gym.registry:
     gym.register(GYM_ID, entry_point=Parking, max_episode_steps=MAX_STEPS)
 register_env("parking", GYM_ID, goal=reached_terminal, action_names=("brake", "coast", "accelerate"),
-             feature_names=("position", "velocity", "spot"))
+             feature_names=("position", "velocity", "spot"), title="Parking")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from ifo.config import RunConfig
-from ifo.envs import ENV_NAMES, UnknownEnvironment, get_env
+from ifo.envs import ENV_NAMES, UnknownEnvironment, env_file_name, get_env
 from ifo.methods import METHODS, UnknownMethod
 from ifo.options import parse_bool
 
@@ -74,7 +74,8 @@ def cmd_train(a: argparse.Namespace) -> int:
     from ifo import checkpoint
 
     cfg = config_from_args(a)
-    out = Path(a.out) if a.out else RUNS_DIR / f"{cfg.env}-{cfg.method}-s{cfg.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    out = Path(a.out) if a.out else RUNS_DIR / f"{env_file_name(cfg.env)}-{cfg.method}-s{cfg.seed}-{stamp}"
     created = not out.exists()
     checkpoint.prepare_out_dir(out, overwrite=a.overwrite)  # before minutes of training, not after
     start = time.perf_counter()

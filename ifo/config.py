@@ -35,6 +35,8 @@ CONFIG_SCHEMA = 2  # 1: one flat dict (before learners had their own configurati
 
 # maze-only evaluation settings, drawn only for mazes (obs_mode and the like are advanced settings)
 MAZE_EVALUATION_FIELDS = ("maze_eval_layouts", "deadlock_guard")
+# every setting only a maze reads: on another task they take their defaults, so they never make another run
+MAZE_ONLY_FIELDS = MAZE_EVALUATION_FIELDS + ("obs_mode", "image_size", "rollout_max_steps", "attention_probes")
 
 
 @dataclass(frozen=True)
@@ -99,7 +101,7 @@ class RunConfig:
             values[s.name] = v
         values["env"], values["method"] = spec.name, method.name
         if not spec.is_maze:  # settings that only a maze reads take their defaults: they do not make another run
-            values.update({name: getattr(RunConfig, name) for name in MAZE_EVALUATION_FIELDS})
+            values.update({name: getattr(RunConfig, name) for name in MAZE_ONLY_FIELDS})
         if learner.fixed_iterations() is not None:
             values["iterations"] = learner.fixed_iterations()
         cfg = replace(self, **values, learner=learner)

@@ -52,6 +52,9 @@ class App:
 
 
 # ----------------------------------------------------------------------------- fixtures
+OWN_ENV = "examples.parking:parking"  # a researcher's own environment, offered beside IfO Lab's
+
+
 # Module-scoped, not session-scoped: Playwright's sync API keeps its event loop marked running in this thread
 # until it stops, and a later test file in the same worker calling asyncio.run() would fail ("never awaited").
 @pytest.fixture(scope="module")
@@ -63,7 +66,8 @@ def app(tmp_path_factory, browser) -> App:
     try:
         # .streamlit/config.toml turns the file watcher off, as for a class: no "File change" banner
         # or rerun in the middle of a journey while someone edits this checkout
-        with serve_app(log, {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(runs)}, timeout=120) as url:
+        with serve_app(log, {"IFO_LAB_FAST": "1", "IFO_LAB_RUNS": str(runs), "IFO_LAB_ENVS": OWN_ENV},
+                       timeout=120) as url:
             served = App(url, runs, log)
             warm_up(browser, url)
             yield served

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 pytest.register_assert_rewrite("browser_support")
-from browser_support import (CHART, LONG_MS, MAIN, ROOT, SlowServer, choose, counter, download, error_boxes,
+from browser_support import (CHART, LONG_MS, MAIN, OWN_ENV, ROOT, SlowServer, choose, counter, download, error_boxes,
                              go_by_sidebar, iteration_shown, open_app, query, sidebar, step, type_number, user_of,
                              wait_idle)  # noqa: E402
 from method_charts import chart_titles  # noqa: E402
@@ -566,6 +566,37 @@ def test_upload_a_bad_file_then_a_good_one(app, page, snap):
     entry = bordered(page, "cartpole-two-episodes", "Train")
     expect(entry).to_contain_text("from two-episodes.npz · 2 episodes")
     expect(page.get_by_role("button", name="Train")).to_have_count(1)
+
+
+def test_your_own_environment_from_its_demonstrations_to_the_step_page(app, page, snap):
+    """A researcher's environment named in IFO_LAB_ENVS (examples/parking.py): its demonstrations uploaded on
+    Your runs, trained there, and the trained run opened on the Step page with its own charts and names."""
+    import examples.parking as parking
+
+    open_app(page, app)
+    go_by_sidebar(page, "Your runs")
+    form = page.locator("[data-testid='stForm']")
+    choose(page, "Environment the demonstrations come from", "Parking", where=form)
+    buffer = io.BytesIO()
+    np.savez(buffer, **parking.demonstrations(30))
+    form.locator("[data-testid='stFileUploaderDropzoneInput']").set_input_files(
+        {"name": "parking.npz", "mimeType": "application/octet-stream", "buffer": buffer.getvalue()})
+    form.get_by_role("button", name="Check and save").click()
+    wait_idle(page)
+    expect(page.get_by_text(re.compile(r"Saved parking-parking: 30 episodes"))).to_be_visible()
+    bordered(page, "parking-parking", "Train").get_by_role("button", name="Train").click()
+    wait_idle(page)
+    trained = bordered(page, "IUPE on Parking", "ZIP", "Rename")  # its entry in the run list
+    expect(trained).to_contain_text("10 of 10 iterations", timeout=LONG_MS)
+    trained.get_by_role("button", name=re.compile(r"\bOpen$")).click()
+
+    expect(page.get_by_role("heading", name="Step through a run")).to_be_visible()
+    expect(counter(page)).to_have_text("Iteration 10 of 10")
+    wait_idle(page)
+    assert query(page).get("env", OWN_ENV) == OWN_ENV and query(page).get("run", "").startswith("parking-iupe-")
+    expect(error_boxes(page)).to_have_count(0)
+    expect(page.locator(CHART)).not_to_have_count(0)
+    expect(page.get_by_text("brake").first).to_be_visible()  # its own action names in the IDM's charts
 
 
 # ----------------------------------------------------------------------------- 10. a read-only share

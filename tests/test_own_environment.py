@@ -146,3 +146,64 @@ def test_an_environment_that_is_nowhere_says_where_it_looked(name, message):
 def test_without_demonstrations_it_asks_for_them():
     with pytest.raises(DemoError, match="ships no demonstrations for examples.parking:parking"):
         Run(RunConfig(env=ENV, method="iupe"))
+
+
+def test_the_app_offers_it_and_trains_it_on_uploaded_demonstrations(demos_file, tmp_path, monkeypatch):
+    """IFO_LAB_ENVS names it: Your runs takes its demonstrations and trains on them, the Step page opens
+    that run as trained, and chosen without demonstrations it says where to bring them."""
+    from streamlit.testing.v1 import AppTest
+
+    from ifo.ui import storage
+    from ifo.ui.queue import get_queue
+
+    monkeypatch.setenv("IFO_LAB_ENVS", f"{ENV}, no_such_module_here:x")  # the second is left out, logged
+    monkeypatch.setenv("IFO_LAB_FAST", "1")
+    monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
+    user = "ownenv001"
+
+    def page(path: str, **query) -> AppTest:
+        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+        at.query_params.update({"user": user, **query})
+        at.run()
+        at.switch_page(path).run()
+        assert not at.exception, at.exception
+        return at
+
+    runs = page("views/runs.py")
+    assert runs.selectbox(key="runs.upload_env").options[-1] == "Parking"
+    storage.save_demos(user, ENV, "parking.npz", demos_file.read_bytes())  # as the upload form saves it
+    runs.run()
+    runs.button(key="runs.train.parking-parking").click().run()
+    assert not runs.exception and not runs.error
+    [job] = get_queue().jobs(user)
+    get_queue().wait_idle(120)
+    assert get_queue().job(user, job.id).state == "done", get_queue().job(user, job.id).error
+    [saved] = storage.list_runs(user)
+    assert saved.config["env"] == ENV
+
+    step = page("views/step_through.py", run=saved.run_id)  # as Your runs opens it
+    run = step.session_state["ifo.slot.step"].run
+    assert step.selectbox(key="step.env").value == ENV and not step.error
+    assert run.iteration == run.config.iterations == saved.iterations_done > 0  # the trained run, all of it
+
+    fresh = page("views/step_through.py", **{"step.env": ENV})
+    assert any("upload yours on *Your runs*" in e.value for e in fresh.error), [e.value for e in fresh.error]
+
+
+
+class _Undrawn(parking.Parking):
+    render = gym.Env.render  # gymnasium's own: draws nothing
+
+
+gym.register("ifo-tests/Undrawn-v0", entry_point=_Undrawn, max_episode_steps=50)
+
+
+def test_an_environment_that_draws_nothing_says_so_instead_of_a_video(demos_file):
+    from ifo.video import policy_rollout_frames
+
+    register_env("undrawn", "ifo-tests/Undrawn-v0", goal=reached_terminal)
+    run = Run(RunConfig.from_dict({"env": "undrawn", "method": "bco-alpha", "demos": str(demos_file),
+                                   "iterations": 1, "eval_episodes": 5}))
+    with pytest.raises(ValueError, match="undrawn draws no pictures"):
+        policy_rollout_frames(run)
+    assert len(policy_rollout_frames(Run(config(demos_file, iterations=1)))[0]) >= 2  # parking draws itself

@@ -178,4 +178,14 @@ def test_train_on_uploaded_demos_queues_a_run():
     get_queue().wait_idle(120)
     assert get_queue().job(USER, job.id).state == "done", get_queue().job(USER, job.id).error
     at.run()
-    assert any(r.config.get("demos") for r in storage.list_runs(USER))
+    [saved] = [r for r in storage.list_runs(USER) if r.config.get("demos")]
+
+    # Open, as its button does: the Step page shows that trained run, not a fresh one of the same settings
+    # (the upload's obs_mode "vector" used to make the page's settings another run's, on a control task)
+    step = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+    step.query_params.update({"user": USER, "run": saved.run_id})
+    step.run()
+    step.switch_page("views/step_through.py").run()
+    assert not step.exception and not step.error
+    assert step.session_state["ifo.slot.step"].run.iteration == saved.iterations_done > 0
+    assert step.query_params["run"] in (saved.run_id, [saved.run_id])

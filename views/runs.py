@@ -11,13 +11,12 @@ import streamlit as st
 
 from ifo.config import RunConfig
 from ifo.data.demos import DemoError
-from ifo.envs import ENVS
 from ifo.methods import METHODS
 from ifo.runtime import limit_threads
 from ifo.ui import compare_page as cp
 from ifo.ui import storage
 from ifo.ui.queue import QueueFull, get_queue
-from ifo.ui.settings import env_label, fast_overrides, method_label
+from ifo.ui.settings import app_envs, env_label, fast_overrides, method_label
 
 STEP_PAGE = "views/step_through.py"
 limit_threads()
@@ -154,7 +153,7 @@ st.caption("Upload an expert's demonstrations as an .npz file with `obs`, `rewar
            "(optionally `actions`, which only BC uses, and `next_obs`): the layout stable-baselines3 and "
            "`imitation` users already have. Files are read as plain numeric arrays, never unpickled.")
 with st.form("runs.upload", clear_on_submit=False, border=True):
-    up_env = st.selectbox("Environment the demonstrations come from", list(ENVS), format_func=env_label,
+    up_env = st.selectbox("Environment the demonstrations come from", app_envs(), format_func=env_label,
                           key="runs.upload_env")
     uploaded = st.file_uploader("Demonstrations (.npz)", type=["npz"], key="runs.upload_file",
                                 max_upload_size=storage.MAX_UPLOAD_MB)

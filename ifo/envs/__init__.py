@@ -158,7 +158,7 @@ REFERENCE_EPISODES = 100  # random-policy episodes a registered environment's ra
 def register_env(name: str, gym_id: str, *, goal: Callable[[Episode], bool],
                  action_names: Sequence[str] | None = None, feature_names: Sequence[str] | None = None,
                  random_return: float | None = None, max_episode_steps: int | None = None,
-                 **kwargs: Any) -> EnvSpec:
+                 title: str | None = None, **kwargs: Any) -> EnvSpec:
     """Make a gymnasium environment (`gym_id`, made with `kwargs`) one IfO Lab learns in, as `name`.
 
     It needs discrete actions, states that are vectors, and episodes that end (a time limit in its
@@ -166,8 +166,9 @@ def register_env(name: str, gym_id: str, *, goal: Callable[[Episode], bool],
     finished episode that ABCO, IUPE and CRIL sample by (`reached_terminal`, `ReturnAtLeast(x)` or any
     callable taking an `Episode`). Performance (Eq 4.2) runs from `random_return` (measured on 100
     random-policy episodes when not given) to the mean return of the demonstrations a run learns
-    from, which the user brings (`RunConfig(demos=...)`): no expert ships for it. Registering a name
-    again with the same environment replaces its names and goal; ValueError in plain words otherwise.
+    from, which the user brings (`RunConfig(demos=...)`): no expert ships for it. `title` is what pages
+    and figures call it (default: `name`). Registering a name again with the same environment replaces
+    its names and goal; ValueError in plain words otherwise.
     Named `module:name` (the module calls this when imported), `get_env` finds it in any process."""
     import gymnasium as gym
 
@@ -207,7 +208,7 @@ def register_env(name: str, gym_id: str, *, goal: Callable[[Episode], bool],
         raise ValueError(f"{gym_id} has {n} actions, but {len(action_names)} action names were given")
     if len(feature_names) != d:
         raise ValueError(f"{gym_id}'s states hold {d} numbers, but {len(feature_names)} feature names were given")
-    spec = EnvSpec(key, gym_id, action_names, goal, kwargs=dict(kwargs), thesis_name=str(name).strip(),
+    spec = EnvSpec(key, gym_id, action_names, goal, kwargs=dict(kwargs), thesis_name=title or str(name).strip(),
                    feature_names=feature_names, registered=True,
                    given_random_return=None if random_return is None else float(random_return))
     with _REGISTRY_LOCK:
@@ -249,11 +250,16 @@ def get_env(name: str) -> EnvSpec:
                              "named module:name")
 
 
+def env_file_name(env: str) -> str:
+    """An environment's name as file and folder names hold it: a registered one's without its module."""
+    return env.rpartition(":")[2]
+
+
 def _registered_random_return(spec: EnvSpec) -> float:
     """The random reference of a registered environment: given, else measured once per process."""
     if spec.given_random_return is not None:
         return spec.given_random_return
-    key = spec.name.rpartition(":")[2]
+    key = env_file_name(spec.name)
     with _REGISTRY_LOCK:
         if key not in _RANDOM_RETURNS:
             from ifo.envs.rollout import random_returns

@@ -189,6 +189,12 @@ class RunSlot:
         except ValueError as e:
             s.error, s.playing = f"These settings cannot make a run: {e}", False
             return None
+        spec = get_env(config.env)
+        if spec.registered and not config.demos:  # a researcher's own environment (IFO_LAB_ENVS)
+            s.error, s.playing = (f"IfO Lab ships no demonstrations for {spec.thesis_name}, an environment of "
+                                  "your own: upload yours on *Your runs* and press **Train** there; the run then "
+                                  "opens here."), False
+            return None
         identity = _identity(config)
         if identity != s.identity and not s.reset_requested and s.run is not None and s.run.records:
             changes = branch_changes(s.run.config, config)

@@ -16,27 +16,33 @@ command line and the checks never drift apart.
   key is the parameter's name), so a teacher can share a link that opens the same
   configuration; a value appears in the URL only when it differs from the default.
 
+Set IFO_LAB_ENVS to a researcher's own environments, comma-separated `module:name`
+(`ifo.envs.register_env`), to offer them beside IfO Lab's; they learn from demonstrations
+uploaded on *Your runs*.
+
 Set IFO_LAB_FAST=1 to shrink every run built through `fast_overrides()` (10 evaluation
 episodes, 10 policy runs per iteration, 2,000 random transitions, 2 policy epochs), so a
 Step takes a fraction of a second. The app's tests set it; a teacher never needs it.
 """
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass, field
 
 import streamlit as st
 
-from ifo.config import MAZE_EVALUATION_FIELDS, RunConfig, switch_specs, switches
-from ifo.envs import ENVS, get_env
+from ifo.config import MAZE_EVALUATION_FIELDS, MAZE_ONLY_FIELDS, RunConfig, switch_specs, switches
+from ifo.envs import ENVS, UnknownEnvironment, get_env
 from ifo.methods import METHODS, get_method
 from ifo.options import Spec, check_field, heavier_than_default, specs
 from ifo.reproduce import TABLES
 
+log = logging.getLogger(__name__)
+
 FAST_OVERRIDES = dict(eval_episodes=10, episodes_per_iteration=10, pre_size=2000, policy_epochs=2, round_steps=512)
 MAIN_FIELDS = ("env", "method", "seed", "iterations")
 MAZE_FIELDS = MAZE_EVALUATION_FIELDS  # shown for mazes only
-MAZE_ONLY = MAZE_FIELDS + ("obs_mode", "image_size", "rollout_max_steps", "attention_probes")
 # drawn with the maze's options, not in "More settings": which methods a maze can run depends on it
 MAZE_UP_FRONT = ("obs_mode",)
 NOT_WIDGETS = ("demos",)  # chosen on the runs page (uploads), not typed in
@@ -52,6 +58,27 @@ def fast_overrides(method: str | None = None) -> dict:
         return dict(FAST_OVERRIDES)
     own = get_method(method).learner_class.Config.field_names() | {s.name for s in specs(RunConfig)}
     return {k: v for k, v in FAST_OVERRIDES.items() if k in own}
+
+
+def app_envs() -> tuple[str, ...]:
+    """The environments the pages offer: IfO Lab's own, then the researcher's named in IFO_LAB_ENVS
+    (comma-separated module:name; one that cannot be found is left out, and the log says why)."""
+    own = []
+    for name in filter(None, (n.strip() for n in os.environ.get("IFO_LAB_ENVS", "").split(","))):
+        try:
+            own.append(get_env(name).name)
+        except (UnknownEnvironment, ValueError) as e:  # a module missing, or registering nothing we can learn in
+            _log_once(f"IFO_LAB_ENVS: {e}")
+    return (*ENVS, *dict.fromkeys(own))
+
+
+_LOGGED: set[str] = set()  # said once per server, not on every rerun
+
+
+def _log_once(message: str) -> None:
+    if message not in _LOGGED:
+        _LOGGED.add(message)
+        log.warning(message)
 
 
 def env_label(env: str) -> str:
@@ -287,11 +314,11 @@ def run_settings(key: str = "run", where=None, bind: bool = False, switches_show
     b = {"bind": "query-params"} if bind else {}
     run_specs = {s.name: s for s in specs(RunConfig)}
     if bind:
-        link_by_name(_k(key, "env"), ENVS, env_label)
+        link_by_name(_k(key, "env"), app_envs(), env_label)
         link_by_name(_k(key, "method"), METHODS, method_label)
     with where:
         st.subheader("Run settings")
-        env = st.selectbox("Environment", list(ENVS), format_func=env_label, key=_k(key, "env"), **b,
+        env = st.selectbox("Environment", app_envs(), format_func=env_label, key=_k(key, "env"), **b,
                            help="The task the expert demonstrated. Only its states are given to the learner.")
         method = st.selectbox("Method", list(METHODS), format_func=method_label, key=_k(key, "method"),
                               index=list(METHODS).index("bco-alpha"), **b)
@@ -366,7 +393,7 @@ def _more_settings(key: str, env: str, method: str, defaults: dict, b: dict) -> 
     """Sizes and rates, in an expander: an empty box keeps the method's or the environment's default."""
     maze = get_env(env).is_maze
     chosen = [s for s in _all_specs(method) if s.advanced and s.name not in NOT_WIDGETS + METHOD_FIELDS + MAZE_UP_FRONT
-              and (maze or s.name not in MAZE_ONLY)]
+              and (maze or s.name not in MAZE_ONLY_FIELDS)]
     values = {}
     with st.expander("More settings"):
         st.caption("Empty boxes keep the default shown in grey.")
@@ -405,8 +432,8 @@ def choice_without_widgets(key: str) -> Choice:
         return default if value is None else value
 
     run_specs = {s.name: s for s in specs(RunConfig)}
-    env_spec = Spec("env", str, False, "cartpole", "", tuple(ENVS), None, None,
-                    {e: env_label(e) for e in ENVS}, False, "", "")
+    env_spec = Spec("env", str, False, "cartpole", "", app_envs(), None, None,
+                    {e: env_label(e) for e in app_envs()}, False, "", "")
     method_spec = Spec("method", str, False, "bco-alpha", "", tuple(METHODS), None, None,
                        {m: method_label(m) for m in METHODS}, False, "", "")
     env, method = pick(env_spec, "cartpole"), pick(method_spec, "bco-alpha")
@@ -415,7 +442,7 @@ def choice_without_widgets(key: str) -> Choice:
     if get_method(method).fixed_iterations is None:
         values["iterations"] = pick(run_specs["iterations"], defaults["iterations"], iterations_key(key, env, method))
     for s in _all_specs(method):
-        if s.name in values or s.name in NOT_WIDGETS + METHOD_FIELDS or (s.name in MAZE_ONLY
+        if s.name in values or s.name in NOT_WIDGETS + METHOD_FIELDS or (s.name in MAZE_ONLY_FIELDS
                                                                          and not get_env(env).is_maze):
             continue
         value = pick(s, None if s.advanced else defaults.get(s.name), _widget_key(key, s.name, env, method))

@@ -62,8 +62,10 @@ def user_dir(user: str) -> Path:
 
 
 def new_run_id(config) -> str:
+    from ifo.envs import env_file_name
+
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    return f"{config.env}-{config.method}-s{config.seed}-{stamp}-{uuid.uuid4().hex[:4]}"
+    return f"{env_file_name(config.env)}-{config.method}-s{config.seed}-{stamp}-{uuid.uuid4().hex[:4]}"
 
 
 @dataclass
@@ -312,8 +314,10 @@ def demos_dir(user: str) -> Path:
 
 def demos_name(env: str, filename: str) -> str:
     """The stored name for an upload: environment + a cleaned-up file stem."""
+    from ifo.envs import env_file_name
+
     stem = re.sub(r"[^A-Za-z0-9_-]+", "-", Path(filename or "demos").stem).strip("-_")[:60] or "demos"
-    return f"{env}-{stem}"
+    return f"{env_file_name(env)}-{stem}"
 
 
 def demo_obs_shapes(env: str) -> list[tuple[tuple[int, ...], str]]:
