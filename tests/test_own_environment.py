@@ -150,7 +150,8 @@ def test_without_demonstrations_it_asks_for_them():
 
 def test_the_app_offers_it_and_trains_it_on_uploaded_demonstrations(demos_file, tmp_path, monkeypatch):
     """IFO_LAB_ENVS names it: Your runs takes its demonstrations and trains on them, the Step page opens
-    that run as trained, and chosen without demonstrations it says where to bring them."""
+    that run as trained (also once the server no longer names it), and chosen without demonstrations it
+    says where to bring them."""
     from streamlit.testing.v1 import AppTest
 
     from ifo.ui import storage
@@ -188,6 +189,15 @@ def test_the_app_offers_it_and_trains_it_on_uploaded_demonstrations(demos_file, 
 
     fresh = page("views/step_through.py", **{"step.env": ENV})
     assert any("upload yours on *Your runs*" in e.value for e in fresh.error), [e.value for e in fresh.error]
+
+    # the server started again without IFO_LAB_ENVS: the saved run still opens, with its environment
+    from ifo import envs
+
+    monkeypatch.delenv("IFO_LAB_ENVS")
+    monkeypatch.setattr(envs, "_FOUND_BY_MODULE", {})
+    again = page("views/step_through.py", run=saved.run_id)
+    assert again.selectbox(key="step.env").value == ENV and not again.error, [e.value for e in again.error]
+    assert again.session_state["ifo.slot.step"].run.iteration == saved.iterations_done
 
 
 

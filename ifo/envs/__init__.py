@@ -151,6 +151,7 @@ class UnknownEnvironment(ValueError):
 
 _REGISTERED: dict[str, EnvSpec] = {}  # register_env's environments, by lower-case name
 _RANDOM_RETURNS: dict[str, float] = {}  # a registered environment's measured random return, by name
+_FOUND_BY_MODULE: dict[str, None] = {}  # the module:name names get_env has found in this process, in order
 _REGISTRY_LOCK = threading.Lock()
 REFERENCE_EPISODES = 100  # random-policy episodes a registered environment's random return is measured on
 
@@ -244,10 +245,16 @@ def get_env(name: str) -> EnvSpec:
         if spec is None:
             raise UnknownEnvironment(f"unknown environment {name!r}: importing {module!r} registered no "
                                      f"environment {inner!r} (ifo.envs.register_env)")
+        _FOUND_BY_MODULE.setdefault(f"{module}:{spec.name}", None)
         return replace(spec, name=f"{module}:{spec.name}")  # saved runs name the module that registers it
     known = ", ".join(f"{s.name} ({s.gym_id})" for s in [*ENVS.values(), *_REGISTERED.values()])
     raise UnknownEnvironment(f"unknown environment {name!r}; known: {known}; your own: ifo.envs.register_env, "
                              "named module:name")
+
+
+def found_by_module() -> tuple[str, ...]:
+    """The registered environments this process has found as module:name (a setting, a saved run)."""
+    return tuple(_FOUND_BY_MODULE)
 
 
 def env_file_name(env: str) -> str:

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import streamlit as st
 
 from ifo.config import MAZE_EVALUATION_FIELDS, MAZE_ONLY_FIELDS, RunConfig, switch_specs, switches
-from ifo.envs import ENVS, UnknownEnvironment, get_env
+from ifo.envs import ENVS, UnknownEnvironment, found_by_module, get_env
 from ifo.methods import METHODS, get_method
 from ifo.options import Spec, check_field, heavier_than_default, specs
 from ifo.reproduce import TABLES
@@ -61,15 +61,15 @@ def fast_overrides(method: str | None = None) -> dict:
 
 
 def app_envs() -> tuple[str, ...]:
-    """The environments the pages offer: IfO Lab's own, then the researcher's named in IFO_LAB_ENVS
-    (comma-separated module:name; one that cannot be found is left out, and the log says why)."""
-    own = []
+    """The environments the pages offer: IfO Lab's own, then the researcher's: those IFO_LAB_ENVS names
+    (comma-separated module:name; one that cannot be found is left out, and the log says why) and any
+    other a saved run named (so it opens with its environment after the server restarts without it)."""
     for name in filter(None, (n.strip() for n in os.environ.get("IFO_LAB_ENVS", "").split(","))):
         try:
-            own.append(get_env(name).name)
+            get_env(name)
         except (UnknownEnvironment, ValueError) as e:  # a module missing, or registering nothing we can learn in
             _log_once(f"IFO_LAB_ENVS: {e}")
-    return (*ENVS, *dict.fromkeys(own))
+    return (*ENVS, *found_by_module())
 
 
 _LOGGED: set[str] = set()  # said once per server, not on every rerun
