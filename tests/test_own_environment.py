@@ -1,6 +1,6 @@
 """A researcher's own gymnasium environment (`ifo.envs.register_env`, examples/parking.py): every method
-learns in it from the researcher's demonstrations, from Python and from the command line, a saved run
-opens in a fresh process, and what IfO Lab cannot learn in is refused in plain words."""
+trains in it on the researcher's demonstrations (IUPE learns it), from Python, the command line and the
+app; a saved run opens in a fresh process; what IfO Lab cannot learn in is refused in plain words."""
 from __future__ import annotations
 
 import json
