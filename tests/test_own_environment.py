@@ -143,6 +143,14 @@ def test_an_environment_that_is_nowhere_says_where_it_looked(name, message):
         get_env(name)
 
 
+def test_a_module_whose_registration_is_refused_says_why(tmp_path, monkeypatch):
+    (tmp_path / "swinging.py").write_text("from ifo.envs import reached_terminal, register_env\n"
+                                          "register_env('swinging', 'Pendulum-v1', goal=reached_terminal)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(UnknownEnvironment, match="could not import 'swinging' .ValueError: Pendulum-v1 has actions"):
+        get_env("swinging:swinging")
+
+
 def test_without_demonstrations_it_asks_for_them():
     with pytest.raises(DemoError, match="ships no demonstrations for examples.parking:parking"):
         Run(RunConfig(env=ENV, method="iupe"))

@@ -239,8 +239,9 @@ def get_env(name: str) -> EnvSpec:
     if colon and module and inner:
         try:
             importlib.import_module(module)
-        except ImportError as e:
-            raise UnknownEnvironment(f"unknown environment {name!r}: could not import {module!r} ({e})") from e
+        except Exception as e:  # not found, or the module itself failed (its register_env refused, a typo)
+            raise UnknownEnvironment(f"unknown environment {name!r}: could not import {module!r} "
+                                     f"({type(e).__name__}: {e})") from e
         spec = _REGISTERED.get(inner.lower())
         if spec is None:
             raise UnknownEnvironment(f"unknown environment {name!r}: importing {module!r} registered no "
