@@ -225,3 +225,47 @@ def test_an_environment_that_draws_nothing_says_so_instead_of_a_video(demos_file
     with pytest.raises(ValueError, match="undrawn draws no pictures"):
         policy_rollout_frames(run)
     assert len(policy_rollout_frames(Run(config(demos_file, iterations=1)))[0]) >= 2  # parking draws itself
+
+
+def test_compare_methods_on_it_from_the_users_demonstrations(demos_file, tmp_path, monkeypatch):
+    """Compare and ablate on a researcher's own environment: without demonstrations it says where to bring
+    them and queues nothing; with them, two methods train on that file and their curves and rows appear."""
+    from streamlit.testing.v1 import AppTest
+
+    from ifo.ui import storage
+    from ifo.ui.queue import get_queue
+
+    monkeypatch.setenv("IFO_LAB_ENVS", ENV)
+    monkeypatch.setenv("IFO_LAB_FAST", "1")
+    monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
+    user = "ownenv002"
+
+    def compare_page() -> AppTest:
+        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+        at.query_params["user"] = user
+        at.run()
+        at.switch_page("views/compare.py").run()
+        at.selectbox(key="compare.env").set_value(ENV).run()
+        assert not at.exception, at.exception
+        return at
+
+    at = compare_page()
+    assert any("upload them on *Your runs* first" in i.value for i in at.info)
+    assert at.button(key="compare.queue_methods").disabled
+
+    storage.save_demos(user, ENV, "parking.npz", demos_file.read_bytes())
+    at = compare_page()
+    assert at.selectbox(key=f"compare.demos.{ENV}").value == "parking-parking"
+    at.number_input(key=f"compare.iterations.{ENV}").set_value(2)
+    at.multiselect(key="compare.methods").set_value(["bco-alpha", "iupe"])
+    at.button(key="compare.queue_methods").click().run()
+    assert not at.exception and not at.error, [e.value for e in at.error]
+    assert get_queue().wait_idle(180)
+    jobs = get_queue().jobs(user)
+    assert [j.state for j in jobs] == ["done", "done"] and {j.config.demos for j in jobs} == {
+        str(storage.list_demos(user)[0].path)}
+    at.run()
+    rows = {r["configuration"]: r for r in at.dataframe[0].value.to_dict("records")}
+    assert set(rows) == {"BCO(α) · Parking · 2 it. · your demos", "IUPE · Parking · 2 it. · your demos"}
+    assert all(r["P (ours)"] != "—" and r["P (thesis)"] == "—" for r in rows.values())
+    assert len(at.get("plotly_chart")) == 2

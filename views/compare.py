@@ -10,14 +10,14 @@ import streamlit as st
 from ifo.components.sampling import SAMPLING_MODES
 from ifo.learners.bco import SAMPLING_LABELS
 from ifo.config import RunConfig
-from ifo.envs import ENVS
+from ifo.envs import get_env
 from ifo.methods import METHODS
 from ifo.reproduce import TABLES
 from ifo.runtime import limit_threads
 from ifo.ui import compare_page as cp
 from ifo.ui import storage
 from ifo.ui.queue import QueueFull, get_queue
-from ifo.ui.settings import default_iterations, env_label, method_label
+from ifo.ui.settings import app_envs, default_iterations, env_label, method_label
 
 limit_threads()
 st.title("Compare and ablate")
@@ -27,7 +27,17 @@ st.caption("Queue several configurations; they train one after another in the ba
 user = storage.current_user()
 queue = get_queue()
 
-env = st.selectbox("Environment", list(ENVS), format_func=env_label, key="compare.env")
+env = st.selectbox("Environment", app_envs(), format_func=env_label, key="compare.env")
+demos, blocked = None, False
+if get_env(env).registered:  # a researcher's own environment: it learns from the user's demonstrations
+    own = {d.name: d for d in storage.list_demos(user) if d.env == env}
+    if own:
+        name = st.selectbox("Demonstrations", list(own), format_func=lambda n: f"{n} (from {own[n].original_name})",
+                            key=f"compare.demos.{env}", help="Your uploads for this environment (Your runs).")
+        demos = storage.demos_settings(own[name])
+    else:
+        st.info(f"{env_label(env)} learns from your demonstrations: upload them on *Your runs* first.")
+        blocked = True
 c1, c2 = st.columns(2)
 seeds = int(c1.number_input("Seeds per configuration", min_value=1, max_value=5, value=1, step=1,
                             key="compare.seeds", help="Each seed is one run; the table shows mean ± sd over seeds."))
@@ -51,8 +61,8 @@ by_method, by_switch, presets = st.tabs(["Methods", "Ablation switches", "Thesis
 with by_method:
     methods = st.multiselect("Methods", list(METHODS), default=["bco-alpha", "iupe"], format_func=method_label,
                              key="compare.methods")
-    if st.button("Queue these methods", key="compare.queue_methods", type="primary", disabled=not methods):
-        submit(cp.method_configs(env, methods, iterations))
+    if st.button("Queue these methods", key="compare.queue_methods", type="primary", disabled=blocked or not methods):
+        submit(cp.method_configs(env, methods, iterations, demos))
 with by_switch:
     st.caption("The one BCO loop with components switched on by hand, as in the thesis's Tables 5.2 and 6.2.")
     a, s, e = st.columns(3)
@@ -61,8 +71,8 @@ with by_switch:
                            help="How I_s mixes random (I_pre) and the policy's own successful (I_pos) transitions.")
     exploration = e.checkbox("Exploration", key="compare.exploration",
                              help="Sample labels and rollout actions from the softmax instead of the MAP action.")
-    if st.button("Queue this configuration", key="compare.queue_switches", type="primary"):
-        submit([cp.switch_config(env, attention, sampling, exploration, iterations)])
+    if st.button("Queue this configuration", key="compare.queue_switches", type="primary", disabled=blocked):
+        submit([cp.switch_config(env, attention, sampling, exploration, iterations, demos)])
 with presets:
     here = st.checkbox(f"Run the tables on {env_label(env)} instead of the thesis's maze", key="compare.preset_here",
                        help="The 10×10 maze takes long on a laptop; a smaller maze shows the same ideas sooner. "
@@ -72,8 +82,8 @@ with presets:
         target = env if here else table.envs[0]
         st.markdown(f"**{table.title}**: {len(table.rows)} rows × {seeds} seed{'s' * (seeds != 1)} "
                     f"on {env_label(target)}")
-        if st.button(f"Queue Table {table_id}", key=f"compare.preset.{table_id}"):
-            submit(cp.preset_configs(table_id, target, iterations if here else None))
+        if st.button(f"Queue Table {table_id}", key=f"compare.preset.{table_id}", disabled=blocked and here):
+            submit(cp.preset_configs(table_id, target, iterations if here else None, demos if here else None))
 
 flash = st.session_state.pop("compare.flash", None)
 if flash:

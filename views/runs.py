@@ -188,9 +188,8 @@ for d in demos:
                 st.error("BC learns from the expert's actions, and this file has none: choose an IfO method.")
             else:
                 try:
-                    config = RunConfig.from_dict(dict(env=d.env, method=method, demos=str(d.path),
-                                                      obs_mode=storage.demos_obs_mode(d.path),
-                                                      expert_episodes=s.get("episodes"), **fast_overrides(method))).resolved()
+                    config = RunConfig.from_dict(dict(env=d.env, method=method, **storage.demos_settings(d),
+                                                      **fast_overrides(method))).resolved()
                     label = f"{method_label(method)} on {env_label(d.env)} · {d.name}"
                     queue.submit(user, config, label=label, group=label)
                 except (QueueFull, ValueError) as e:

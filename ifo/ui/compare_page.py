@@ -75,20 +75,24 @@ def plan(config: RunConfig, name: str | None = None, thesis: tuple | None = None
     return Planned(group_label(name, config), config, thesis)
 
 
-def method_configs(env: str, methods: list[str], iterations: int | None = None) -> list[Planned]:
-    return [plan(RunConfig(env=env, method=m, iterations=iterations if get_method(m).fixed_iterations is None else None))
+def method_configs(env: str, methods: list[str], iterations: int | None = None,
+                   demos: dict | None = None) -> list[Planned]:
+    """Each method on `env`; `demos`: the settings of a user's demonstrations (`storage.demos_settings`)."""
+    return [plan(RunConfig.from_dict({"env": env, "method": m, **(demos or {}),
+                                      "iterations": iterations if get_method(m).fixed_iterations is None else None}))
             for m in methods]
 
 
 def switch_config(env: str, attention: bool, sampling: str, exploration: bool,
-                  iterations: int | None = None) -> Planned:
+                  iterations: int | None = None, demos: dict | None = None) -> Planned:
     """The one loop (BCO(α)) with the thesis's ablation switches set by hand."""
     return plan(RunConfig.from_dict(dict(env=env, method="bco-alpha", iterations=iterations,
                                          attention="gated" if attention else "none", sampling=sampling,
-                                         explore_labels=exploration, explore_rollouts=exploration)))
+                                         explore_labels=exploration, explore_rollouts=exploration, **(demos or {}))))
 
 
-def preset_configs(table_id: str, env: str | None = None, iterations: int | None = None) -> list[Planned]:
+def preset_configs(table_id: str, env: str | None = None, iterations: int | None = None,
+                   demos: dict | None = None) -> list[Planned]:
     """Every row of an ablation table (5.2 or 6.2) as a configuration, on the table's maze or `env`."""
     table = TABLES[table_id]
     env = get_env(env or table.envs[0]).name
@@ -99,7 +103,7 @@ def preset_configs(table_id: str, env: str | None = None, iterations: int | None
         own = table.thesis.get(row.label, {}).get(env)
         thesis = (*own, f"Table {table_id}: {row.label}") if own else None
         out.append(plan(RunConfig.from_dict({"env": env, "method": row.method, "iterations": iterations,
-                                             **row.overrides}), row.label, thesis))
+                                             **row.overrides, **(demos or {})}), row.label, thesis))
     return out
 
 

@@ -308,6 +308,12 @@ class SavedDemos:
     modified: float
 
 
+def demos_settings(demos: SavedDemos) -> dict:
+    """The run settings that train on saved demonstrations: the file, how its states look, all its episodes."""
+    return {"demos": str(demos.path), "obs_mode": demos_obs_mode(demos.path),
+            "expert_episodes": demos.summary.get("episodes")}
+
+
 def demos_dir(user: str) -> Path:
     return user_dir(user) / DEMOS_FOLDER
 
