@@ -570,7 +570,8 @@ def test_upload_a_bad_file_then_a_good_one(app, page, snap):
 
 def test_your_own_environment_from_its_demonstrations_to_the_step_page(app, page, snap):
     """A researcher's environment named in IFO_LAB_ENVS (examples/parking.py): its demonstrations uploaded on
-    Your runs, trained there, and the trained run opened on the Step page with its own charts and names."""
+    Your runs, trained there, the trained run opened on the Step page with its own charts and names, then
+    two methods compared on the same upload."""
     import examples.parking as parking
 
     open_app(page, app)
@@ -597,6 +598,20 @@ def test_your_own_environment_from_its_demonstrations_to_the_step_page(app, page
     expect(error_boxes(page)).to_have_count(0)
     expect(page.locator(CHART)).not_to_have_count(0)
     expect(page.get_by_text("brake").first).to_be_visible()  # its own action names in the IDM's charts
+
+    # Compare and ablate asks which upload its runs learn from, and trains two methods on it
+    go_by_sidebar(page, "Compare and ablate")
+    choose(page, "Environment", "Parking", where=page.locator(MAIN))
+    expect(page.get_by_role("combobox", name="Demonstrations")).to_have_value("parking-parking (from parking.npz)")
+    type_number(page, "Iterations per run", 2)
+    page.get_by_role("button", name="Queue these methods").click()
+    expect(page.get_by_text("Queued 2 runs.")).to_be_visible()
+    expect(page.get_by_text(re.compile(r"0 waiting or training, 3 ended")).first).to_be_visible(timeout=2 * LONG_MS)
+    wait_idle(page)
+    expect(page.get_by_text("finished after 2 of 2 iterations")).to_have_count(2)
+    expect(error_boxes(page)).to_have_count(0)
+    expect(page.locator(CHART)).to_have_count(2)
+    snap(page, "compare")
 
 
 # ----------------------------------------------------------------------------- 10. a read-only share
