@@ -111,6 +111,13 @@ def test_copies_get_distinct_labels_and_one_environment_gets_its_reference_lines
     assert refs["expert"] == pytest.approx(500.0) and refs["random"] < 30
     assert cp.common_references([{"env": "cartpole"}, {"env": "acrobot"}]) is None  # no one line fits both
 
+    # the references each run's records say it measured against: a user's demonstrations are their own expert
+    def measured(expert: float) -> dict:
+        return {"env": "cartpole", "records": [{"evaluation": {"expert_reference": expert, "random_reference": 22.0}}]}
+
+    assert cp.common_references([measured(431.5), measured(431.5)]) == {"expert": 431.5, "random": 22.0}
+    assert cp.common_references([measured(431.5), measured(500.0)]) is None
+
 
 def test_the_comparison_pack_holds_tables_without_a_browser():
     import io

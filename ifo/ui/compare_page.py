@@ -119,10 +119,19 @@ def distinct_labels(runs: list[tuple[str, list]]) -> list[tuple[str, list]]:
 
 
 def common_references(entries: list[dict]) -> dict | None:
-    """The expert's and a random policy's AER when every entry is on one environment, else None."""
+    """The expert's and a random policy's AER when every entry is on one environment and measured its
+    Performance against the same ones (its records say which: a user's demonstrations are their own
+    expert), else None. Records from before they held their references: the environment's."""
     envs = {e.get("env") for e in entries}
     if len(envs) != 1 or None in envs:
         return None
+    measured = {(ev.get("expert_reference"), ev.get("random_reference"))
+                for ev in ((e.get("records") or [{}])[-1].get("evaluation") or {} for e in entries)}
+    if measured != {(None, None)}:
+        if len(measured) != 1:
+            return None  # runs on different demonstrators: no one line fits them all
+        expert, random = measured.pop()
+        return {"expert": expert, "random": random}
     refs = get_env(envs.pop()).references()
     return {"expert": refs.get("expert_aer"), "random": refs.get("random_aer")}
 
@@ -281,8 +290,8 @@ def queue_panel(user: str, queue, key: str, show_results: bool = True, extra_run
         left, right = st.columns(2)
         for col, metric, caption in ((left, "performance", "Performance: 0 is a random policy, 1 the expert (Eq 4.2)."),
                                      (right, "aer", "Average episodic reward after each iteration (Eq 4.1); dashed: "
-                                                    "the expert's and a random policy's, when every run shares "
-                                                    "one environment.")):
+                                                    "the expert's and a random policy's, when every run measured "
+                                                    "its Performance against the same ones.")):
             with col:
                 fig = figures.compare_runs(with_records, metric, references=refs)
                 st.plotly_chart(fig, key=f"{key}.{metric}", config=CHART_CONFIG)
