@@ -126,7 +126,7 @@ class Run:
             return {"random": np.asarray(layouts["random"])[idx], "expert": np.asarray(layouts["expert"])[idx],
                     "random_aer": refs.get("random_aer"), "expert_aer": refs.get("expert_aer")}
         expert = refs.get("expert_aer")
-        if self.config.demos or self.spec.registered:  # a user's demonstrator: normalise by what it achieved
+        if self.config.demos or expert is None:  # a user's demonstrator (no expert ships): what it achieved
             expert = float(np.mean(self.demos.episode_returns))
         return {"random": refs.get("random_aer"), "expert": expert,
                 "random_aer": refs.get("random_aer"), "expert_aer": expert}

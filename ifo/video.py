@@ -84,12 +84,13 @@ def _control_episode(spec, act, seed: int, max_frames: int) -> tuple[list[np.nda
     try:
         obs, _ = env.reset(seed=int(seed))
         try:
-            frames = [render_frame(env)]
-        except NotImplementedError:
-            frames = [None]
-        if frames[0] is None:  # a researcher's own environment may not draw itself
+            first = render_frame(env)
+        except NotImplementedError:  # gymnasium's own render(): a researcher's environment may not draw itself
+            first = None
+        if first is None:
             raise ValueError(f"{spec.thesis_name or spec.name} draws no pictures (its render() gives none in "
                              "render_mode='rgb_array')")
+        frames = [first]
         ret, done = 0.0, False
         while not done and len(frames) < max_frames:
             obs, r, term, trunc, _ = env.step(int(act(obs)))

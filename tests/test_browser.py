@@ -490,6 +490,20 @@ def test_export_a_chart_and_the_slide_pack(app, page):
 
 
 # ----------------------------------------------------------------------------- 8. compare
+def queue_two_methods_and_wait(page, iterations: int, ended: int) -> None:
+    """On Compare and ablate: `iterations` per run, queue the two methods chosen, wait until the queue holds
+    `ended` ended jobs, both new ones finished and no error."""
+    type_number(page, "Iterations per run", iterations)
+    page.get_by_role("button", name="Queue these methods").click()
+    expect(page.get_by_text("Queued 2 runs.")).to_be_visible()
+    # .first: while the queue's fragment reruns, Streamlit may show its previous copy beside the new one
+    expect(page.get_by_text(re.compile(rf"0 waiting or training, {ended} ended")).first).to_be_visible(
+        timeout=2 * LONG_MS)
+    wait_idle(page)
+    expect(page.get_by_text(f"finished after {iterations} of {iterations} iterations")).to_have_count(2)
+    expect(error_boxes(page)).to_have_count(0)
+
+
 def test_compare_two_methods(app, page):
     """Queue BCO(α) and IUPE on the compare page, wait for both, read their curves and the table."""
     open_app(page, app)
@@ -498,14 +512,7 @@ def test_compare_two_methods(app, page):
     chosen = page.locator("[data-testid='stMultiSelect']").filter(has_text="Methods").first
     expect(chosen).to_contain_text("BCO(α)")
     expect(chosen).to_contain_text("IUPE")
-    type_number(page, "Iterations per run", 3)
-    page.get_by_role("button", name="Queue these methods").click()
-    expect(page.get_by_text("Queued 2 runs.")).to_be_visible()
-    # .first: while the queue's fragment reruns, Streamlit may show its previous copy beside the new one
-    expect(page.get_by_text(re.compile(r"0 waiting or training, 2 ended")).first).to_be_visible(timeout=2 * LONG_MS)
-    wait_idle(page)
-    expect(page.get_by_text("finished after 3 of 3 iterations")).to_have_count(2)
-    expect(error_boxes(page)).to_have_count(0)
+    queue_two_methods_and_wait(page, iterations=3, ended=2)
 
     charts = page.locator(CHART)
     expect(charts).to_have_count(2)  # Performance and AER on shared axes
@@ -574,7 +581,9 @@ def test_your_own_environment_from_its_demonstrations_to_the_step_page(app, page
     two methods compared on the same upload."""
     import examples.parking as parking
 
-    open_app(page, app)
+    open_app(page, app, "step", **{"step.env": OWN_ENV})  # a link naming it, before any upload
+    expect(error_boxes(page)).to_contain_text("upload yours on Your runs")
+    snap(page, "by-link")
     go_by_sidebar(page, "Your runs")
     form = page.locator("[data-testid='stForm']")
     choose(page, "Environment the demonstrations come from", "Parking", where=form)
@@ -603,13 +612,7 @@ def test_your_own_environment_from_its_demonstrations_to_the_step_page(app, page
     go_by_sidebar(page, "Compare and ablate")
     choose(page, "Environment", "Parking", where=page.locator(MAIN))
     expect(page.get_by_role("combobox", name="Demonstrations")).to_have_value("parking-parking (from parking.npz)")
-    type_number(page, "Iterations per run", 2)
-    page.get_by_role("button", name="Queue these methods").click()
-    expect(page.get_by_text("Queued 2 runs.")).to_be_visible()
-    expect(page.get_by_text(re.compile(r"0 waiting or training, 3 ended")).first).to_be_visible(timeout=2 * LONG_MS)
-    wait_idle(page)
-    expect(page.get_by_text("finished after 2 of 2 iterations")).to_have_count(2)
-    expect(error_boxes(page)).to_have_count(0)
+    queue_two_methods_and_wait(page, iterations=2, ended=3)  # the third: the run trained from Your runs
     expect(page.locator(CHART)).to_have_count(2)
     snap(page, "compare")
 

@@ -156,27 +156,36 @@ def test_without_demonstrations_it_asks_for_them():
         Run(RunConfig(env=ENV, method="iupe"))
 
 
-def test_the_app_offers_it_and_trains_it_on_uploaded_demonstrations(demos_file, tmp_path, monkeypatch):
+@pytest.fixture
+def app_env(tmp_path, monkeypatch):
+    """The app as a server with IFO_LAB_ENVS naming Parking (and a name that is nowhere: left out, logged)."""
+    monkeypatch.setenv("IFO_LAB_ENVS", f"{ENV}, no_such_module_here:x")
+    monkeypatch.setenv("IFO_LAB_FAST", "1")
+    monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
+
+
+def open_page(path: str, user: str, **query):
+    from streamlit.testing.v1 import AppTest
+
+    at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+    at.query_params.update({"user": user, **query})
+    at.run()
+    at.switch_page(path).run()
+    assert not at.exception, at.exception
+    return at
+
+
+def test_the_app_offers_it_and_trains_it_on_uploaded_demonstrations(demos_file, app_env, monkeypatch):
     """IFO_LAB_ENVS names it: Your runs takes its demonstrations and trains on them, the Step page opens
     that run as trained (also once the server no longer names it), and chosen without demonstrations it
     says where to bring them."""
-    from streamlit.testing.v1 import AppTest
-
     from ifo.ui import storage
     from ifo.ui.queue import get_queue
 
-    monkeypatch.setenv("IFO_LAB_ENVS", f"{ENV}, no_such_module_here:x")  # the second is left out, logged
-    monkeypatch.setenv("IFO_LAB_FAST", "1")
-    monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
     user = "ownenv001"
 
-    def page(path: str, **query) -> AppTest:
-        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
-        at.query_params.update({"user": user, **query})
-        at.run()
-        at.switch_page(path).run()
-        assert not at.exception, at.exception
-        return at
+    def page(path: str, **query):
+        return open_page(path, user, **query)
 
     runs = page("views/runs.py")
     assert runs.selectbox(key="runs.upload_env").options[-1] == "Parking"
@@ -208,7 +217,6 @@ def test_the_app_offers_it_and_trains_it_on_uploaded_demonstrations(demos_file, 
     assert again.session_state["ifo.slot.step"].run.iteration == saved.iterations_done
 
 
-
 class _Undrawn(parking.Parking):
     render = gym.Env.render  # gymnasium's own: draws nothing
 
@@ -227,24 +235,16 @@ def test_an_environment_that_draws_nothing_says_so_instead_of_a_video(demos_file
     assert len(policy_rollout_frames(Run(config(demos_file, iterations=1)))[0]) >= 2  # parking draws itself
 
 
-def test_compare_methods_on_it_from_the_users_demonstrations(demos_file, tmp_path, monkeypatch):
+def test_compare_methods_on_it_from_the_users_demonstrations(demos_file, app_env):
     """Compare and ablate on a researcher's own environment: without demonstrations it says where to bring
     them and queues nothing; with them, two methods train on that file and their curves and rows appear."""
-    from streamlit.testing.v1 import AppTest
-
     from ifo.ui import storage
     from ifo.ui.queue import get_queue
 
-    monkeypatch.setenv("IFO_LAB_ENVS", ENV)
-    monkeypatch.setenv("IFO_LAB_FAST", "1")
-    monkeypatch.setenv("IFO_LAB_RUNS", str(tmp_path / "runs"))
     user = "ownenv002"
 
-    def compare_page() -> AppTest:
-        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
-        at.query_params["user"] = user
-        at.run()
-        at.switch_page("views/compare.py").run()
+    def compare_page():
+        at = open_page("views/compare.py", user)
         at.selectbox(key="compare.env").set_value(ENV).run()
         assert not at.exception, at.exception
         return at

@@ -220,4 +220,8 @@ def random_returns(spec: EnvSpec, episodes: int = 100) -> np.ndarray:
         a = rng.integers(0, spec.n_actions, size=len(obs))
         return a, a
 
-    return run_episodes(EnvPool(spec), act, EVAL_SEED_BASE + np.arange(episodes), record=False).returns
+    pool = EnvPool(spec)
+    try:
+        return run_episodes(pool, act, EVAL_SEED_BASE + np.arange(episodes), record=False).returns
+    finally:
+        pool.close()

@@ -432,8 +432,9 @@ def choice_without_widgets(key: str) -> Choice:
         return default if value is None else value
 
     run_specs = {s.name: s for s in specs(RunConfig)}
-    env_spec = Spec("env", str, False, "cartpole", "", app_envs(), None, None,
-                    {e: env_label(e) for e in app_envs()}, False, "", "")
+    envs = app_envs()
+    env_spec = Spec("env", str, False, "cartpole", "", envs, None, None, {e: env_label(e) for e in envs}, False,
+                    "", "")
     method_spec = Spec("method", str, False, "bco-alpha", "", tuple(METHODS), None, None,
                        {m: method_label(m) for m in METHODS}, False, "", "")
     env, method = pick(env_spec, "cartpole"), pick(method_spec, "bco-alpha")
